@@ -1,0 +1,28 @@
+//! WorldPack's geometry-first frame memory.
+//!
+//! Every past frame keeps its camera pose; selection scores each one by how
+//! much of the target view its frustum covers (with a mild recency penalty),
+//! ranks them, and packs the best into the model's context at compression
+//! rates chosen by rank. See `docs/architecture.md` for the map and
+//! `docs/conventions.md` for the axes.
+//!
+//! - [`pose`] and [`camera`]: poses (OpenCV camera-to-world) and intrinsics,
+//!   with conversions from OpenCV extrinsics, OpenGL and 5-D Minecraft poses.
+//! - [`frustum`]: truncated view frusta (f64 planes + a `parry3d` polyhedron).
+//! - [`overlap`]: exact, Monte Carlo and WorldMem-style overlap estimators.
+//! - [`policy`]: rankings, packings and the [`ContextPlan`].
+
+pub mod camera;
+pub mod error;
+pub mod frustum;
+pub mod overlap;
+pub mod policy;
+pub mod pose;
+pub mod rng;
+
+pub use camera::Intrinsics;
+pub use error::InputError;
+pub use frustum::Frustum;
+pub use overlap::Estimator;
+pub use policy::{ContextPlan, LatentGrid, MemoryFrame, Packing, Policy, PolicyKind, PolicySpec, select};
+pub use pose::{AngleUnit, Pose, Pose5, Pose5Convention};
