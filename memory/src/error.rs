@@ -45,7 +45,7 @@ impl InputError {
 }
 
 /// Checks that every value is finite, naming `field` (with an index for arrays).
-pub(crate) fn check_finite(field: &str, values: &[f64]) -> Result<(), InputError> {
+pub fn check_finite(field: &str, values: &[f64]) -> Result<(), InputError> {
     for (i, &value) in values.iter().enumerate() {
         if !value.is_finite() {
             let field = if values.len() == 1 { field.to_string() } else { format!("{field}[{i}]") };
@@ -53,4 +53,21 @@ pub(crate) fn check_finite(field: &str, values: &[f64]) -> Result<(), InputError
         }
     }
     Ok(())
+}
+
+impl InputError {
+    /// The same error with its field placed under `prefix` (`target.intrinsics` + `fx`).
+    pub fn within(self, prefix: &str) -> InputError {
+        let join = |f: String| if prefix.is_empty() { f } else { format!("{prefix}.{f}") };
+        match self {
+            InputError::NotFinite { field, value } => InputError::NotFinite { field: join(field), value },
+            InputError::NotPositive { field, value } => InputError::NotPositive { field: join(field), value },
+            InputError::NotARotation { field, reason } => InputError::NotARotation { field: join(field), reason },
+            InputError::FovOutOfRange { field, value } => InputError::FovOutOfRange { field: join(field), value },
+            InputError::Invalid { field, reason } => InputError::Invalid { field: join(field), reason },
+            InputError::NearNotBeforeFar { near, far } => {
+                InputError::Invalid { field: join("near".into()), reason: format!("near ({near}) must be smaller than far ({far})") }
+            }
+        }
+    }
 }
