@@ -1,0 +1,79 @@
+//! End-to-end checks of the `worldpack` binary.
+
+use std::io::Write;
+use std::process::{Command, Stdio};
+
+fn worldpack(args: &[&str], stdin: &str) -> (i32, String, String) {
+    let mut child = Command::new(env!("CARGO_BIN_EXE_worldpack"))
+        .args(args)
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("worldpack starts");
+    child.stdin.take().unwrap().write_all(stdin.as_bytes()).unwrap();
+    let out = child.wait_with_output().unwrap();
+    (out.status.code().unwrap_or(-1), String::from_utf8(out.stdout).unwrap(), String::from_utf8(out.stderr).unwrap())
+}
+
+/// Parses the demo table into (policy, view covered %).
+fn coverage(table: &str) -> Vec<(String, f64)> {
+    table
+        .lines()
+        .filter_map(|l| {
+            let cols: Vec<&str> = l.split_whitespace().collect();
+            let pct = cols.get(1)?.strip_suffix('%')?.parse().ok()?;
+            Some((cols[0].to_string(), pct))
+        })
+        .collect()
+}
+
+#[test]
+fn demo_shows_worldpack_covering_more_of_the_next_view_than_the_baseline() {
+    let (code, out, err) = worldpack(&["demo", "--range", "15"], "");
+    assert_eq!(code, 0, "{err}");
+    let rows = coverage(&out);
+    let get = |name: &str| rows.iter().find(|(p, _)| p == name).map(|r| r.1).unwrap_or_else(|| panic!("{name} in {out}"));
+    assert_eq!(rows.len(), 5, "{out}");
+    assert!(get("WorldPack") > get("Baseline") + 3.0, "{out}");
+    assert!(get("WorldPack") >= get("MemoryRetrieval"), "{out}");
+}
+
+#[test]
+fn demo_refuses_a_zero_range() {
+    let (code, _, err) = worldpack(&["demo", "--range", "0"], "");
+    assert_eq!(code, 2);
+    assert!(err.contains("--range"), "{err}");
+}
+
+#[test]
+fn geometry_answers_a_select_request_with_token_counts() {
+    let request = r#"{"op": "select", "policy": {"kind": "worldpack"}, "latent": {"height": 28, "width": 28, "patch": 2},
+        "target": {"pose": {"pose5": {"x": 0, "y": 64, "z": 0, "pitch": 0, "yaw": 0, "convention": "minecraft", "unit": "degrees"}},
+                   "intrinsics": {"hfov_deg": 90, "width": 64, "height": 64}},
+        "frames": [
+          {"id": 1, "time": 0, "pose": {"pose5": {"x": 0, "y": 64, "z": 0, "pitch": 0, "yaw": 0, "convention": "minecraft", "unit": "degrees"}},
+           "intrinsics": {"hfov_deg": 90, "width": 64, "height": 64}},
+          {"id": 2, "time": 1, "pose": {"pose5": {"x": 0, "y": 64, "z": 0, "pitch": 0, "yaw": 180, "convention": "minecraft", "unit": "degrees"}},
+           "intrinsics": {"hfov_deg": 90, "width": 64, "height": 64}}]}"#;
+    let (code, out, err) = worldpack(&["geometry"], request);
+    assert_eq!(code, 0, "{err}");
+    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(v["plan"]["slots"][0]["frame"]["id"], 1);
+    assert_eq!(v["plan"]["slots"][0]["frame"]["overlap"], 1.0);
+    assert_eq!(v["plan"]["slots"][1]["frame"]["overlap"], 0.0);
+    assert_eq!(v["tokens"]["used"], 392);
+    assert_eq!(v["tokens"]["capacity"], 844);
+}
+
+#[test]
+fn geometry_rejects_duplicate_frame_ids_by_field() {
+    let frame = r#"{"id": 4, "time": 0, "pose": {"opencv": {"rvec": [0,0,0], "tvec": [0,0,0]}}, "intrinsics": {"fx": 30, "width": 64, "height": 64}}"#;
+    let request = format!(
+        r#"{{"op": "select", "policy": {{"kind": "baseline"}}, "target": {{"pose": {{"opencv": {{"rvec": [0,0,0], "tvec": [0,0,0]}}}}, "intrinsics": {{"fx": 30, "width": 64, "height": 64}}}}, "frames": [{frame}, {frame}]}}"#
+    );
+    let (code, out, _) = worldpack(&["geometry"], &request);
+    assert_eq!(code, 2);
+    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(v["error"]["field"], "frames[1].id");
+}
