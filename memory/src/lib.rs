@@ -10,11 +10,14 @@
 //!   with conversions from OpenCV extrinsics, OpenGL and 5-D Minecraft poses.
 //! - [`frustum`]: truncated view frusta (f64 planes + a `parry3d` polyhedron).
 //! - [`overlap`]: exact, Monte Carlo and WorldMem-style overlap estimators.
-//! - [`policy`]: rankings, packings and the [`ContextPlan`].
+//! - [`policy`]: rankings, packings, the [`ContextPlan`] and brute-force selection.
+//! - [`index`]: [`FrameMemory`], the R-tree-indexed store whose selection
+//!   equals brute force but skips frames that provably cannot enter.
 
 pub mod camera;
 pub mod error;
 pub mod frustum;
+pub mod index;
 pub mod overlap;
 pub mod policy;
 pub mod pose;
@@ -23,6 +26,7 @@ pub mod rng;
 pub use camera::Intrinsics;
 pub use error::InputError;
 pub use frustum::Frustum;
+pub use index::{FrameMemory, SelectionStats};
 pub use overlap::Estimator;
 pub use policy::{ContextPlan, LatentGrid, MemoryFrame, Packing, Policy, PolicyKind, PolicySpec, select};
 pub use pose::{AngleUnit, Pose, Pose5, Pose5Convention};

@@ -246,7 +246,7 @@ pub struct ContextPlan {
 }
 
 impl ContextPlan {
-    fn from_ranked(packing: &Packing, ranked: &[SelectedFrame]) -> ContextPlan {
+    pub(crate) fn from_ranked(packing: &Packing, ranked: &[SelectedFrame]) -> ContextPlan {
         let slots = packing.rates().enumerate().map(|(i, rate)| Slot { rate, frame: ranked.get(i).copied() }).collect();
         ContextPlan { slots }
     }
@@ -302,21 +302,28 @@ impl LatentGrid {
 }
 
 /// Selects by brute force: every stored frame is considered. The target is
-/// the frustum of the frame being generated (DESIGN §3).
+/// the frustum of the frame being generated (DESIGN §3). This is the
+/// reference that the indexed selection in [`crate::index`] must match.
 pub fn select(policy: &Policy, target: &Frustum, frames: &[MemoryFrame]) -> ContextPlan {
+    let refs: Vec<&MemoryFrame> = frames.iter().collect();
+    select_among(policy, target, &refs)
+}
+
+/// [`select`] over borrowed frames.
+pub fn select_among(policy: &Policy, target: &Frustum, frames: &[&MemoryFrame]) -> ContextPlan {
     let Some(t_now) = frames.iter().map(|f| f.time).max() else {
         return ContextPlan::from_ranked(&policy.packing, &[]);
     };
-    let age = |f: &MemoryFrame| if t_now == 0 { 0.0 } else { (t_now - f.time) as f64 / t_now as f64 };
+    let age_of = |f: &MemoryFrame| age(f.time, t_now);
     let n = policy.packing.slots();
     let by_recency = |a: &&MemoryFrame, b: &&MemoryFrame| b.time.cmp(&a.time).then(b.id.cmp(&a.id));
-    let pinned: Option<&MemoryFrame> = if policy.keep_last { frames.iter().min_by(by_recency) } else { None };
-    let rest = frames.iter().filter(|f| pinned.is_none_or(|p| !std::ptr::eq(*f, p)));
+    let pinned: Option<&MemoryFrame> = if policy.keep_last { frames.iter().copied().min_by(by_recency) } else { None };
+    let rest = frames.iter().copied().filter(|f| pinned.is_none_or(|p| !std::ptr::eq(*f, p)));
     let describe = |f: &MemoryFrame, overlap: f64| SelectedFrame {
         id: f.id,
         time: f.time,
         overlap,
-        score: policy.weights.score(overlap, age(f)),
+        score: policy.weights.score(overlap, age_of(f)),
     };
 
     let mut ranked: Vec<SelectedFrame> = Vec::with_capacity(n);
@@ -363,6 +370,11 @@ pub fn select(policy: &Policy, target: &Frustum, frames: &[MemoryFrame]) -> Cont
         }
     }
     ContextPlan::from_ranked(&policy.packing, &ranked)
+}
+
+/// `Δt_i = (t − time_i)/t`, 0 when `t = 0` (paper Eq. 7).
+pub fn age(time: u64, t_now: u64) -> f64 {
+    if t_now == 0 { 0.0 } else { t_now.saturating_sub(time) as f64 / t_now as f64 }
 }
 
 /// Best first: higher score, then more recent, then larger id. Total, so
