@@ -1,0 +1,168 @@
+//! `worldpack bench select`: selection latency against the number of stored
+//! frames, indexed against brute force, on one core.
+
+use std::time::Instant;
+
+use glam::{DMat3, DVec3, EulerRot};
+use memory::overlap::MonteCarlo;
+use memory::rng::SplitMix64;
+use memory::{ContextPlan, Estimator, FrameMemory, Frustum, Intrinsics, MemoryFrame, Policy, PolicyKind, Pose, select};
+use serde::Serialize;
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum Workload {
+    /// LoopNav-like back-and-forth inside a 50×50-block square: nearly every box meets the query.
+    Loop,
+    /// A long walk across a large world: the R-tree's case.
+    Walk,
+}
+
+#[derive(Serialize)]
+pub struct Row {
+    pub frames: usize,
+    pub indexed_median_ms: f64,
+    pub indexed_p95_ms: f64,
+    pub brute_exact_median_ms: f64,
+    pub brute_exact_p95_ms: f64,
+    pub brute_mc_median_ms: f64,
+    pub brute_mc_repeats: usize,
+    pub speedup_vs_brute_exact: f64,
+    pub speedup_vs_brute_mc: f64,
+    pub exact_evaluations_per_selection: f64,
+    pub box_candidates_per_selection: f64,
+    pub insert_us_per_frame: f64,
+}
+
+/// Poses `(position, yaw, pitch)` along the workload, one block per step.
+fn trajectory(workload: Workload, n: usize, seed: u64) -> Vec<(DVec3, f64, f64)> {
+    let mut rng = SplitMix64::new(seed);
+    let (mut pos, mut yaw) = (DVec3::new(0.0, 65.6, 0.0), 0.0f64);
+    (0..n)
+        .map(|_| {
+            yaw += (rng.next_f64() - 0.5) * 0.6;
+            pos += DVec3::new(-yaw.sin(), 0.0, yaw.cos());
+            if workload == Workload::Loop && (pos.x.abs() > 25.0 || pos.z.abs() > 25.0) {
+                pos.x = pos.x.clamp(-25.0, 25.0);
+                pos.z = pos.z.clamp(-25.0, 25.0);
+                yaw += std::f64::consts::PI; // turn back, as LoopNav's agent returns
+            }
+            (pos, yaw, (rng.next_f64() - 0.5) * 0.3)
+        })
+        .collect()
+}
+
+fn frustum(k: Intrinsics, (pos, yaw, pitch): (DVec3, f64, f64)) -> Frustum {
+    let pose = Pose::new(DMat3::from_euler(EulerRot::YXZ, yaw, pitch, 0.0), pos).expect("finite bench pose");
+    Frustum::new(pose, k).expect("valid bench intrinsics")
+}
+
+fn percentile(sorted: &[f64], q: f64) -> f64 {
+    sorted[((sorted.len() - 1) as f64 * q).round() as usize]
+}
+
+/// Times `f` on each query until `queries` are done or `budget_s` is spent (at least `min` runs).
+fn timed<T>(queries: usize, min: usize, budget_s: f64, mut f: impl FnMut(usize) -> T) -> Vec<f64> {
+    let mut ms = Vec::new();
+    let start = Instant::now();
+    for q in 0..queries {
+        if q >= min && start.elapsed().as_secs_f64() > budget_s {
+            break;
+        }
+        let t = Instant::now();
+        std::hint::black_box(f(q));
+        ms.push(t.elapsed().as_secs_f64() * 1e3);
+    }
+    ms.sort_by(f64::total_cmp);
+    ms
+}
+
+pub fn run(workload: Workload, sizes: &[usize], queries: usize, progress: bool) -> Vec<Row> {
+    let k = Intrinsics::from_fov(70.0, None, 64, 64).expect("constant intrinsics");
+    let worldpack = Policy::preset(PolicyKind::WorldPack);
+    let mut monte_carlo = Policy::preset(PolicyKind::WorldPack);
+    monte_carlo.estimator = Estimator::MonteCarlo(MonteCarlo { samples: 10_000, seed: 0 });
+    let largest = sizes.iter().copied().max().unwrap_or(0);
+    let poses = trajectory(workload, largest + queries, 7);
+    sizes
+        .iter()
+        .map(|&n| {
+            if progress {
+                eprintln!("bench select: {workload:?}, {n} frames");
+            }
+            let frames: Vec<MemoryFrame> =
+                (0..n).map(|t| MemoryFrame { id: t as u64, time: t as u64, frustum: frustum(k, poses[t]) }).collect();
+            let mut memory = FrameMemory::new();
+            let insert_start = Instant::now();
+            for f in &frames {
+                memory.insert(f.clone()).expect("unique ids");
+            }
+            let insert_us = insert_start.elapsed().as_secs_f64() * 1e6 / n as f64;
+            // Targets: the poses that follow the stored history.
+            let targets: Vec<Frustum> = (0..queries).map(|q| frustum(k, poses[n + q])).collect();
+
+            let mut previous: Option<ContextPlan> = None;
+            let (mut evaluations, mut candidates) = (0usize, 0usize);
+            let indexed = timed(queries, queries, f64::INFINITY, |q| {
+                let (plan, stats) = memory.select(&worldpack, &targets[q], previous.as_ref());
+                evaluations += stats.overlap_evaluations;
+                candidates += stats.box_candidates;
+                previous = Some(plan);
+            });
+            let brute = timed(queries, 3, 4.0, |q| select(&worldpack, &targets[q], &frames));
+            let mc = timed(queries, 1, 4.0, |q| select(&monte_carlo, &targets[q], &frames));
+            let med = |v: &[f64]| percentile(v, 0.5);
+            Row {
+                frames: n,
+                indexed_median_ms: med(&indexed),
+                indexed_p95_ms: percentile(&indexed, 0.95),
+                brute_exact_median_ms: med(&brute),
+                brute_exact_p95_ms: percentile(&brute, 0.95),
+                brute_mc_median_ms: med(&mc),
+                brute_mc_repeats: mc.len(),
+                speedup_vs_brute_exact: med(&brute) / med(&indexed),
+                speedup_vs_brute_mc: med(&mc) / med(&indexed),
+                exact_evaluations_per_selection: evaluations as f64 / queries as f64,
+                box_candidates_per_selection: candidates as f64 / queries as f64,
+                insert_us_per_frame: insert_us,
+            }
+        })
+        .collect()
+}
+
+/// Least-squares slope of log(indexed median) against log(frames).
+pub fn loglog_slope(rows: &[Row]) -> f64 {
+    let pts: Vec<(f64, f64)> = rows.iter().map(|r| ((r.frames as f64).ln(), r.indexed_median_ms.ln())).collect();
+    let n = pts.len() as f64;
+    let (mx, my) = (pts.iter().map(|p| p.0).sum::<f64>() / n, pts.iter().map(|p| p.1).sum::<f64>() / n);
+    let cov: f64 = pts.iter().map(|p| (p.0 - mx) * (p.1 - my)).sum();
+    let var: f64 = pts.iter().map(|p| (p.0 - mx).powi(2)).sum();
+    cov / var
+}
+
+pub fn print(workload: Workload, rows: &[Row]) {
+    println!("selection (score + plan), WorldPack policy, 22 slots, one core, workload {workload:?}");
+    println!(
+        "{:>8} | {:>9} {:>9} | {:>10} {:>10} | {:>10} {:>4} | {:>9} {:>9} | {:>8} {:>8} | {:>7}",
+        "frames", "idx med", "idx p95", "brute med", "brute p95", "MC10k med", "reps", "x brute", "x MC", "evals", "boxes", "ins µs"
+    );
+    for r in rows {
+        println!(
+            "{:>8} | {:>7.3}ms {:>7.3}ms | {:>8.2}ms {:>8.2}ms | {:>8.1}ms {:>4} | {:>8.1}x {:>8.0}x | {:>8.1} {:>8.1} | {:>7.1}",
+            r.frames,
+            r.indexed_median_ms,
+            r.indexed_p95_ms,
+            r.brute_exact_median_ms,
+            r.brute_exact_p95_ms,
+            r.brute_mc_median_ms,
+            r.brute_mc_repeats,
+            r.speedup_vs_brute_exact,
+            r.speedup_vs_brute_mc,
+            r.exact_evaluations_per_selection,
+            r.box_candidates_per_selection,
+            r.insert_us_per_frame
+        );
+    }
+    if rows.len() >= 2 {
+        println!("log-log slope of indexed median against frames: {:.2}", loglog_slope(rows));
+    }
+}
