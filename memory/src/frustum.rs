@@ -100,12 +100,12 @@ impl Frustum {
         });
         let volume = (r - l) * (b - t) * (k.far.powi(3) - k.near.powi(3)) / 3.0;
         let hull: Vec<Vec3> = local.iter().map(|p| p.as_vec3()).collect();
+        if !volume.is_finite() || volume <= 0.0 || !hull.iter().all(|p| p.is_finite()) {
+            return Err(InputError::invalid("intrinsics", format!("frustum is not finite (volume {volume}); check far and the focal lengths")));
+        }
         let local_shape = ConvexPolyhedron::from_convex_hull(&hull).ok_or_else(|| {
             InputError::invalid("intrinsics", "frustum is degenerate in single precision (check near, far and focal lengths)")
         })?;
-        if !volume.is_finite() || volume <= 0.0 {
-            return Err(InputError::invalid("intrinsics", format!("frustum volume is {volume}")));
-        }
         Ok(Frustum { pose, intrinsics: k, corners, planes, volume, aabb: Aabb::from_points(&corners), local_shape })
     }
 
@@ -216,6 +216,15 @@ mod tests {
         }
         // Single-precision parry may disagree only for points within ~1e-5 of a face.
         assert!(agree >= 1998, "{agree}/2000");
+    }
+
+    #[test]
+    fn absurd_ranges_are_refused_not_panicked_on() {
+        let k = Intrinsics::from_fov(90.0, None, 64, 64).unwrap();
+        for far in [1e39, 1e200] {
+            let err = Frustum::new(Pose::from_position(DVec3::ZERO), k.with_range(0.1, far).unwrap()).unwrap_err();
+            assert_eq!(err.field(), "intrinsics");
+        }
     }
 
     #[test]

@@ -100,7 +100,8 @@ impl Packing {
         Packing::new(tiers)
     }
 
-    /// `slots` frames at full resolution (the Baseline and Memory Retrieval budget).
+    /// `slots` frames at full resolution (the Baseline and Memory Retrieval
+    /// budget). Panics on 0 slots; user-given tiers go through [`Packing::new`].
     pub fn uncompressed(slots: usize) -> Packing {
         Packing::new(vec![Tier { slots, rate: 1 }]).expect("one tier at rate 1")
     }
@@ -126,8 +127,8 @@ impl Packing {
 
 /// `√rate` when the rate is a perfect square.
 pub fn side_factor(rate: u32) -> Option<u32> {
-    let s = (rate as f64).sqrt().round() as u32;
-    (s * s == rate).then_some(s)
+    let s = (rate as f64).sqrt().round() as u64;
+    (s * s == rate as u64).then_some(s as u32)
 }
 
 /// How frames are put in order before packing.
@@ -296,8 +297,8 @@ impl LatentGrid {
     /// Tokens of one frame at `rate`: kernel `patch·√rate` per side, the
     /// latent replicate-padded up to a multiple of the kernel.
     pub fn tokens_at_rate(&self, rate: u32) -> u64 {
-        let k = self.patch * side_factor(rate).unwrap_or(1);
-        (self.height.div_ceil(k) as u64) * (self.width.div_ceil(k) as u64)
+        let k = self.patch as u64 * side_factor(rate).unwrap_or(1) as u64;
+        (self.height as u64).div_ceil(k) * (self.width as u64).div_ceil(k)
     }
 }
 

@@ -166,6 +166,9 @@ fn packed_context_costs_as_many_tokens_as_the_baseline_when_sizes_divide() {
     // A half-filled plan reports what it uses and what the tensor holds.
     let plan = select(&Policy::preset(PolicyKind::WorldPack), &target, &frames[..3]);
     assert_eq!(plan.tokens(&sd), (2 * 196 + 49, 844));
+    // Huge shapes count in 64 bits instead of overflowing.
+    let huge = LatentGrid { height: u32::MAX, width: u32::MAX, patch: u32::MAX };
+    assert_eq!(huge.tokens_at_rate(16), 1);
 }
 
 #[test]
@@ -183,6 +186,8 @@ fn policy_specs_validate_their_overrides() {
     assert_eq!(err.field(), "weights.recency");
     let err = spec(r#"{"kind": "worldpack", "estimator": {"kind": "monte_carlo", "samples": 0, "seed": 1}}"#).unwrap_err();
     assert_eq!(err.field(), "estimator.samples");
+    let err = spec(r#"{"kind": "worldpack", "tiers": [{"slots": 2, "rate": 4294967295}]}"#).unwrap_err();
+    assert_eq!(err.field(), "tiers[0].rate");
     assert!(serde_json::from_str::<PolicySpec>(r#"{"kind": "bogus"}"#).is_err());
     assert_eq!(Packing::geometric(2, &[(2, 0), (4, 2), (16, 4)]).unwrap(), Packing::worldpack());
 }
