@@ -3,8 +3,10 @@
 mod bench;
 mod demo;
 mod geometry;
+mod sim;
 
 use std::io::Read;
+use std::path::PathBuf;
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
@@ -29,6 +31,11 @@ enum Command {
         #[command(subcommand)]
         what: BenchCommand,
     },
+    /// The synthetic LoopNav-style voxel world: suites, training data, single frames.
+    Sim {
+        #[command(subcommand)]
+        what: SimCommand,
+    },
     /// Answer geometry requests: JSON on stdin (one object or an array), JSON on stdout.
     ///
     /// Ops: convert, project, resize, frustum, overlap, select. See docs/cli.md.
@@ -37,6 +44,65 @@ enum Command {
         #[arg(long)]
         input: Option<std::path::PathBuf>,
     },
+}
+
+#[derive(Subcommand)]
+enum SimCommand {
+    /// Write the LoopNav evaluation suite: ABA and ABCA at ranges 5, 15, 30, 50 (test world seeds).
+    Loopnav {
+        #[arg(long)]
+        out: PathBuf,
+        /// Trajectories per (task, range); LoopNav uses 18.
+        #[arg(long, default_value_t = 18, value_parser = clap::value_parser!(u32).range(1..=1000))]
+        per_cell: u32,
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+        /// Frame size WxH.
+        #[arg(long, default_value = "64x64", value_parser = sim::parse_size)]
+        size: (u32, u32),
+        /// Comma-separated tasks.
+        #[arg(long, value_delimiter = ',', default_value = "aba,abca", value_parser = sim::parse_task)]
+        tasks: Vec<world::Task>,
+        /// Comma-separated navigation ranges in blocks.
+        #[arg(long, value_delimiter = ',', default_value = "5,15,30,50")]
+        ranges: Vec<i32>,
+    },
+    /// Write training data: loop-style trajectories and free exploration (training world seeds).
+    Dataset {
+        #[arg(long, value_parser = clap::value_parser!(u32).range(1..=1_000_000))]
+        trajectories: u32,
+        #[arg(long)]
+        out: PathBuf,
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+        #[arg(long, default_value = "64x64", value_parser = sim::parse_size)]
+        size: (u32, u32),
+    },
+    /// Render one frame: rgb.png, depth.png, depth.npy and render.json.
+    Render {
+        #[arg(long)]
+        out: PathBuf,
+        /// World seed.
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+        /// Camera as x,y,z,pitch,yaw (Minecraft convention, degrees, eye position). Default: the spawn point facing +z.
+        #[arg(long, value_parser = sim::parse_pose5, allow_hyphen_values = true)]
+        pose: Option<memory::Pose5>,
+        /// Spawn in this biome instead (plains, forest, desert, snowy, mountains, badlands).
+        #[arg(long, value_parser = sim::parse_biome, conflicts_with = "pose")]
+        biome: Option<world::Biome>,
+        #[arg(long, default_value = "64x64", value_parser = sim::parse_size)]
+        size: (u32, u32),
+        /// Pixel u,v whose block face is reported in render.json (default: the centre).
+        #[arg(long, value_parser = parse_pixel)]
+        probe: Option<(u32, u32)>,
+    },
+}
+
+fn parse_pixel(s: &str) -> Result<(u32, u32), String> {
+    let (u, v) = s.split_once(',').ok_or_else(|| format!("expected u,v, got {s:?}"))?;
+    let n = |t: &str| t.trim().parse::<u32>().map_err(|_| format!("expected whole pixel coordinates u,v, got {s:?}"));
+    Ok((n(u)?, n(v)?))
 }
 
 #[derive(Subcommand)]
@@ -54,6 +120,13 @@ enum BenchCommand {
         /// Print JSON instead of a table.
         #[arg(long)]
         json: bool,
+    },
+    /// Renderer frames per second on one core at 64x64, 128x128, 224x224 and 640x360.
+    Render {
+        #[arg(long, default_value_t = 60, value_parser = clap::value_parser!(u64).range(1..=100_000))]
+        frames: u64,
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
     },
 }
 
@@ -79,6 +152,18 @@ fn main() -> ExitCode {
             }
             ExitCode::SUCCESS
         }
+        Command::Bench { what: BenchCommand::Render { frames, seed } } => report(sim::bench_render(frames as usize, seed), "bench render"),
+        Command::Sim { what } => match what {
+            SimCommand::Loopnav { out, per_cell, seed, size, tasks, ranges } => {
+                report(sim::loopnav(&out, per_cell as usize, seed, size, &tasks, &ranges), "sim loopnav")
+            }
+            SimCommand::Dataset { trajectories, out, seed, size } => {
+                report(sim::dataset(&out, trajectories as usize, seed, size), "sim dataset")
+            }
+            SimCommand::Render { out, seed, pose, biome, size, probe } => {
+                report(sim::render_one(&out, seed, pose, biome, size, probe), "sim render")
+            }
+        },
         Command::Geometry { input } => {
             let text = match input {
                 Some(path) => std::fs::read_to_string(&path).map_err(|e| format!("cannot read {}: {e}", path.display())),
@@ -97,6 +182,17 @@ fn main() -> ExitCode {
                     ExitCode::from(2)
                 }
             }
+        }
+    }
+}
+
+/// Prints an error chain as one line naming the command; exit code 2.
+fn report(result: anyhow::Result<()>, command: &str) -> ExitCode {
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("worldpack {command}: {e:#}");
+            ExitCode::from(2)
         }
     }
 }

@@ -1,0 +1,202 @@
+//! `worldpack sim`: the synthetic world from the command line — suites,
+//! training data, single frames — and `worldpack bench render`.
+
+use std::path::Path;
+use std::time::Instant;
+
+use anyhow::{Context, Result, bail};
+use indicatif::{ProgressBar, ProgressStyle};
+use memory::{AngleUnit, Intrinsics, Pose, Pose5, Pose5Convention};
+use world::render::{RenderSettings, cast, render};
+use world::suite::{self, Planned};
+use world::{Biome, Task, World};
+
+/// `WxH`, e.g. `64x64`.
+pub fn parse_size(s: &str) -> Result<(u32, u32), String> {
+    let (w, h) = s.split_once(['x', 'X']).ok_or_else(|| format!("expected WxH such as 64x64, got {s:?}"))?;
+    let parse = |v: &str, what: &str| {
+        v.trim().parse::<u32>().ok().filter(|n| (8..=4096).contains(n)).ok_or_else(|| format!("{what} must be 8..=4096, got {v:?}"))
+    };
+    Ok((parse(w, "width")?, parse(h, "height")?))
+}
+
+/// `x,y,z,pitch,yaw` in Minecraft's convention (degrees, eye position).
+pub fn parse_pose5(s: &str) -> Result<Pose5, String> {
+    let v: Vec<f64> = s.split(',').map(|p| p.trim().parse::<f64>()).collect::<Result<_, _>>()
+        .map_err(|_| format!("expected five numbers x,y,z,pitch,yaw, got {s:?}"))?;
+    match v[..] {
+        [x, y, z, pitch, yaw] if v.iter().all(|n| n.is_finite()) => Ok(Pose5 { x, y, z, pitch, yaw }),
+        _ => Err(format!("expected five finite numbers x,y,z,pitch,yaw, got {s:?}")),
+    }
+}
+
+pub fn parse_biome(s: &str) -> Result<Biome, String> {
+    let all = [Biome::Plains, Biome::Forest, Biome::Desert, Biome::Snowy, Biome::Mountains, Biome::Badlands];
+    all.into_iter()
+        .find(|b| serde_json::to_value(b).ok().and_then(|v| v.as_str().map(|n| n == s)).unwrap_or(false))
+        .ok_or_else(|| format!("unknown biome {s:?}; one of plains, forest, desert, snowy, mountains, badlands"))
+}
+
+pub fn parse_task(s: &str) -> Result<Task, String> {
+    match s {
+        "aba" => Ok(Task::Aba),
+        "abca" => Ok(Task::Abca),
+        _ => Err(format!("unknown task {s:?}; one of aba, abca")),
+    }
+}
+
+fn intrinsics(size: (u32, u32)) -> Result<Intrinsics> {
+    suite::default_intrinsics(size.0, size.1).map_err(|e| anyhow::anyhow!("--size: {e}"))
+}
+
+fn bar(len: usize, what: &str) -> ProgressBar {
+    let bar = ProgressBar::new(len as u64);
+    bar.set_style(
+        ProgressStyle::with_template("{prefix} [{bar:30}] {pos}/{len} {msg} ({elapsed}, ~{eta} left)")
+            .unwrap()
+            .progress_chars("=> "),
+    );
+    bar.set_prefix(what.to_string());
+    bar
+}
+
+fn threads() -> usize {
+    std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1)
+}
+
+fn write_plan(out: &Path, kind: &str, seed: u64, plan: &[Planned], size: (u32, u32)) -> Result<()> {
+    let k = intrinsics(size)?;
+    let progress = bar(plan.len(), kind);
+    let index = suite::write_suite(out, kind, seed, plan, &k, &RenderSettings::default(), threads(), &|name| {
+        progress.set_message(name.to_string());
+        progress.inc(1);
+    })
+    .map_err(|e| anyhow::anyhow!(e))?;
+    progress.finish();
+    let text = std::fs::read_to_string(&index)?;
+    let v: serde_json::Value = serde_json::from_str(&text)?;
+    println!("wrote {} trajectories, {} frames at {}x{} -> {}", plan.len(), v["frames"], size.0, size.1, index.display());
+    Ok(())
+}
+
+pub fn loopnav(out: &Path, per_cell: usize, seed: u64, size: (u32, u32), tasks: &[Task], ranges: &[i32]) -> Result<()> {
+    if let Some(r) = ranges.iter().find(|r| !(1..=60).contains(*r)) {
+        bail!("--ranges: each range must lie in 1..=60 blocks (the world holds ±60-block legs), got {r}");
+    }
+    write_plan(out, "loopnav", seed, &suite::loopnav_plan(seed, per_cell, tasks, ranges), size)
+}
+
+pub fn dataset(out: &Path, trajectories: usize, seed: u64, size: (u32, u32)) -> Result<()> {
+    write_plan(out, "dataset", seed, &suite::dataset_plan(seed, trajectories), size)
+}
+
+/// One frame: `rgb.png`, `depth.png`, `depth.npy` (f32, inf = sky) and
+/// `render.json` (pose, intrinsics, and the block face under `probe`).
+pub fn render_one(out: &Path, seed: u64, pose: Option<Pose5>, biome: Option<Biome>, size: (u32, u32), probe: Option<(u32, u32)>) -> Result<()> {
+    let world = World::generate(seed);
+    let pose5 = match pose {
+        Some(p) => p,
+        None => {
+            let cell = world::agent::spawn_point(&world, biome)
+                .with_context(|| format!("--biome: world {seed} has no standable {biome:?} ground"))?;
+            world::PlayerState::at_cell(cell, 0.0).pose5()
+        }
+    };
+    let camera = Pose::from_pose5(&pose5, Pose5Convention::Minecraft, AngleUnit::Degrees).map_err(|e| anyhow::anyhow!("--pose: {e}"))?;
+    let k = intrinsics(size)?;
+    let settings = RenderSettings::default();
+    let frame = render(&world, &camera, &k, &settings);
+    std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
+    world::picture::write_png(&out.join("rgb.png"), k.width, k.height, &frame.rgb)?;
+    let depth_rgb = world::picture::depth_to_rgb(&frame.depth, settings.fog_start as f32 * 2.0);
+    world::picture::write_png(&out.join("depth.png"), k.width, k.height, &depth_rgb)?;
+    world::npy::write(&out.join("depth.npy"), &[k.height as usize, k.width as usize], &frame.depth)?;
+    let (u, v) = probe.unwrap_or((k.width / 2, k.height / 2));
+    if u >= k.width || v >= k.height {
+        bail!("--probe: pixel ({u}, {v}) lies outside the {}x{} image", k.width, k.height);
+    }
+    let probe_hit = face_under_pixel(&world, &camera, &k, &settings, u, v);
+    let info = serde_json::json!({
+        "world_seed": seed,
+        "biome": world.biome(pose5.x.floor() as i32, pose5.z.floor() as i32),
+        "pose5": pose5,
+        "pose5_convention": "minecraft, degrees",
+        "camera_to_world": camera.matrix_rows(),
+        "intrinsics": k,
+        "render": settings,
+        "probe": probe_hit,
+    });
+    std::fs::write(out.join("render.json"), serde_json::to_string_pretty(&info)?)?;
+    println!("wrote {}x{} frame of world {seed} at {:.2},{:.2},{:.2} (pitch {:.1}, yaw {:.1}) -> {}",
+        k.width, k.height, pose5.x, pose5.y, pose5.z, pose5.pitch, pose5.yaw, out.display());
+    Ok(())
+}
+
+/// The block face seen through pixel `(u, v)`: its cell, its four world
+/// corners and where this crate's camera projects them (for checking
+/// against OpenCV).
+fn face_under_pixel(world: &World, camera: &Pose, k: &Intrinsics, settings: &RenderSettings, u: u32, v: u32) -> serde_json::Value {
+    let dir = camera.rotation() * glam::DVec3::new((u as f64 - k.cx) / k.fx, (v as f64 - k.cy) / k.fy, 1.0);
+    let Some(hit) = cast(world, camera.position(), dir, settings.view_distance / dir.length()) else {
+        return serde_json::json!({ "pixel": [u, v], "hit": false });
+    };
+    // The face plane is the cell boundary nearest the hit point along the
+    // face's axis; its corners span the other two axes.
+    let axis = match hit.face {
+        world::blocks::Face::SideX => 0,
+        world::blocks::Face::SideZ => 2,
+        _ => 1,
+    };
+    let plane = hit.point.to_array()[axis].round();
+    let (a, b) = match axis {
+        0 => (1, 2),
+        1 => (0, 2),
+        _ => (0, 1),
+    };
+    let corners: Vec<[f64; 3]> = [(0, 0), (1, 0), (1, 1), (0, 1)]
+        .iter()
+        .map(|&(da, db)| {
+            let mut c = [0.0; 3];
+            c[axis] = plane;
+            c[a] = (hit.cell[a] + da) as f64;
+            c[b] = (hit.cell[b] + db) as f64;
+            c
+        })
+        .collect();
+    let projected: Vec<Option<[f64; 2]>> = corners
+        .iter()
+        .map(|c| k.project(camera.world_to_camera(glam::DVec3::from_array(*c))).map(|p| [p.x, p.y]))
+        .collect();
+    serde_json::json!({
+        "pixel": [u, v],
+        "hit": true,
+        "cell": hit.cell,
+        "block": format!("{:?}", hit.block),
+        "face_axis": (["x", "y", "z"])[axis],
+        "depth": hit.t,
+        "corners_world": corners,
+        "corners_pixels": projected,
+    })
+}
+
+/// Frames per second of the renderer on one core at several sizes.
+pub fn bench_render(frames: usize, seed: u64) -> Result<()> {
+    let world = World::generate(seed);
+    let spawn = world::agent::spawn_point(&world, None).context("no spawn point")?;
+    println!("renderer, one core, world {seed}, {frames} frames per size turning on the spot at the spawn point");
+    println!("{:>9} | {:>10} {:>10} | {:>8}", "size", "ms/frame", "frames/s", "sky %");
+    for (w, h) in [(64, 64), (128, 128), (224, 224), (640, 360)] {
+        let k = intrinsics((w, h))?;
+        let settings = RenderSettings::default();
+        let mut state = world::PlayerState::at_cell(spawn, 0.0);
+        let (mut sky, start) = (0usize, Instant::now());
+        for i in 0..frames {
+            state.yaw_deg = (i * 360 / frames) as f64;
+            let frame = render(&world, &state.camera(), &k, &settings);
+            sky += frame.depth.iter().filter(|d| !d.is_finite()).count();
+        }
+        let ms = start.elapsed().as_secs_f64() * 1000.0 / frames as f64;
+        println!("{:>9} | {:>10.2} {:>10.1} | {:>7.1}%", format!("{w}x{h}"), ms, 1000.0 / ms, 100.0 * sky as f64 / (frames * (w * h) as usize) as f64);
+    }
+    Ok(())
+}

@@ -1,0 +1,107 @@
+//! Pictures for people: PNG frames, a false-colour depth image, and a
+//! top-down map of a trajectory over the terrain.
+
+use std::io;
+use std::path::Path;
+
+use crate::blocks::{Block, Face};
+use crate::terrain::World;
+use crate::trajectory::{Phase, Trajectory};
+
+/// Writes 8-bit RGB pixels (row-major, top-left first) as a PNG.
+pub fn write_png(path: &Path, width: u32, height: u32, rgb: &[u8]) -> io::Result<()> {
+    let file = std::io::BufWriter::new(std::fs::File::create(path)?);
+    let mut encoder = png::Encoder::new(file, width, height);
+    encoder.set_color(png::ColorType::Rgb);
+    encoder.set_depth(png::BitDepth::Eight);
+    let mut writer = encoder.write_header().map_err(io::Error::other)?;
+    writer.write_image_data(rgb).map_err(io::Error::other)?;
+    writer.finish().map_err(io::Error::other)
+}
+
+/// Depth as colour: near is bright yellow, far is deep violet, sky black.
+/// `max_depth` maps to the far end of the ramp.
+pub fn depth_to_rgb(depth: &[f32], max_depth: f32) -> Vec<u8> {
+    const STOPS: [[f32; 3]; 4] = [[252.0, 230.0, 90.0], [230.0, 100.0, 60.0], [140.0, 40.0, 120.0], [40.0, 10.0, 80.0]];
+    depth
+        .iter()
+        .flat_map(|&d| {
+            if !d.is_finite() {
+                return [0, 0, 0];
+            }
+            let t = (d / max_depth).clamp(0.0, 1.0) * (STOPS.len() - 1) as f32;
+            let i = (t as usize).min(STOPS.len() - 2);
+            let f = t - i as f32;
+            [0, 1, 2].map(|c| (STOPS[i][c] + (STOPS[i + 1][c] - STOPS[i][c]) * f).round() as u8)
+        })
+        .collect()
+}
+
+/// A top-down map of the trajectory's surroundings, `scale` pixels per
+/// block (at least; small maps are drawn larger): terrain coloured by its top block and shaded by height, the path
+/// (outbound orange, return magenta), A white, goals black.
+pub fn top_down(world: &World, trajectory: &Trajectory, scale: u32) -> (u32, u32, Vec<u8>) {
+    let xs = trajectory.steps.iter().map(|s| s.state.feet[0]);
+    let zs = trajectory.steps.iter().map(|s| s.state.feet[2]);
+    let margin = 8.0;
+    let (x0, x1) = (xs.clone().fold(f64::MAX, f64::min) - margin, xs.fold(f64::MIN, f64::max) + margin);
+    let (z0, z1) = (zs.clone().fold(f64::MAX, f64::min) - margin, zs.fold(f64::MIN, f64::max) + margin);
+    let (bx0, bz0) = (x0.floor() as i32, z0.floor() as i32);
+    let (bw, bh) = ((x1.ceil() as i32 - bx0) as u32, (z1.ceil() as i32 - bz0) as u32);
+    let scale = scale.max(320 / bw.max(bh).max(1));
+    let (w, h) = (bw * scale, bh * scale);
+    let mut img = vec![0u8; (w * h * 3) as usize];
+    for bz in 0..bh as i32 {
+        for bx in 0..bw as i32 {
+            let (x, z) = (bx0 + bx, bz0 + bz);
+            let colour = match world.top(x, z) {
+                Some(y) => {
+                    let block = world.get(x, y, z);
+                    let base = block.texel(Face::Top, [x, y, z], 3, 3);
+                    let light = if block == Block::Water { 1.0 } else { 0.55 + 0.45 * (y as f64 / 40.0).min(1.0) };
+                    base.map(|c| (c * light).clamp(0.0, 255.0) as u8)
+                }
+                None => [0, 0, 0],
+            };
+            for py in 0..scale {
+                for px in 0..scale {
+                    put(&mut img, w, h, (bx as u32 * scale + px) as i64, (bz as u32 * scale + py) as i64, colour);
+                }
+            }
+        }
+    }
+    let to_px = |x: f64, z: f64| (((x - bx0 as f64) * scale as f64) as i64, ((z - bz0 as f64) * scale as f64) as i64);
+    for pair in trajectory.steps.windows(2) {
+        let colour = if pair[1].phase == Phase::Return { [230, 40, 200] } else { [255, 150, 20] };
+        let (a, b) = (to_px(pair[0].state.feet[0], pair[0].state.feet[2]), to_px(pair[1].state.feet[0], pair[1].state.feet[2]));
+        line(&mut img, w, h, a, b, colour);
+    }
+    for (i, c) in trajectory.waypoints.iter().enumerate() {
+        let (px, py) = to_px(c[0] as f64 + 0.5, c[2] as f64 + 0.5);
+        let (fill, r) = if i == 0 { ([255, 255, 255], 4) } else { ([0, 0, 0], 3) };
+        for dy in -r..=r {
+            for dx in -r..=r {
+                put(&mut img, w, h, px + dx, py + dy, if dx.abs() == r || dy.abs() == r { [40, 40, 40] } else { fill });
+            }
+        }
+    }
+    (w, h, img)
+}
+
+fn put(img: &mut [u8], w: u32, h: u32, x: i64, y: i64, c: [u8; 3]) {
+    if x >= 0 && y >= 0 && (x as u32) < w && (y as u32) < h {
+        let i = 3 * (y as usize * w as usize + x as usize);
+        img[i..i + 3].copy_from_slice(&c);
+    }
+}
+
+fn line(img: &mut [u8], w: u32, h: u32, a: (i64, i64), b: (i64, i64), c: [u8; 3]) {
+    let n = (b.0 - a.0).abs().max((b.1 - a.1).abs()).max(1);
+    for i in 0..=n {
+        let x = a.0 + (b.0 - a.0) * i / n;
+        let y = a.1 + (b.1 - a.1) * i / n;
+        for (dx, dy) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
+            put(img, w, h, x + dx, y + dy, c);
+        }
+    }
+}
