@@ -195,7 +195,7 @@ pub fn spawn_point(world: &World, biome: Option<crate::terrain::Biome>) -> Optio
 }
 
 /// A* over standable cells with 8-neighbour moves: up one block (a jump),
-/// level, or down up to three; diagonals only where both sides are open.
+/// level, or down one; diagonals only where both sides are open.
 /// Returns the cells from `start` to `goal` inclusive, or `None` if the goal
 /// is unreachable within `max_expansions`.
 pub fn find_path(world: &World, start: [i32; 3], goal: [i32; 3], max_expansions: usize) -> Option<Vec<[i32; 3]>> {
@@ -262,11 +262,10 @@ fn neighbours(world: &World, [x, y, z]: [i32; 3]) -> Vec<([i32; 3], f64)> {
             out.push(([nx, y, nz], 1.0));
         } else if standable(world, nx, y + 1, nz) && !world.get(x, y + 2, z).is_solid() {
             out.push(([nx, y + 1, nz], 1.5));
-        } else if let Some(ny) = (1..=3).map(|d| y - d).find(|&ny| standable(world, nx, ny, nz)) {
-            // Only if the drop is open all the way down from our height.
-            if (ny..=y + 1).all(|yy| !world.get(nx, yy, nz).is_solid()) {
-                out.push(([nx, ny, nz], 1.2));
-            }
+        } else if standable(world, nx, y - 1, nz) && !world.get(nx, y + 1, nz).is_solid() {
+            // Down one block. Deeper drops are left out so that every move
+            // can be undone: the way back is never longer than the way out.
+            out.push(([nx, y - 1, nz], 1.2));
         }
     }
     out

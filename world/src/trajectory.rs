@@ -93,6 +93,8 @@ pub enum TrajectoryError {
     NoGoal { leg: usize, tries: usize },
     #[error("the agent got stuck on leg {leg} at step {step}")]
     Stuck { leg: usize, step: usize },
+    #[error("the way back takes {0} frames, more than LoopNav's longest ({LOOPNAV_MAX_RETURN})")]
+    ReturnTooLong(usize),
     #[error("the trajectory exceeds {0} steps")]
     TooLong(usize),
 }
@@ -100,8 +102,12 @@ pub enum TrajectoryError {
 /// The yaw targets of LoopNav's look-around (mineflayer 0, π/2, π, 3π/2, 0,
 /// in Minecraft's convention).
 pub const LOOK_AROUND_YAWS: [f64; 5] = [180.0, 90.0, 0.0, -90.0, 180.0];
+/// LoopNav's longest evaluated rollout, in frames.
+pub const LOOPNAV_MAX_RETURN: usize = 630;
 /// A* effort per leg.
 const MAX_EXPANSIONS: usize = 400_000;
+/// A leg's path may be at most this many times the straight distance (+10).
+const DETOUR: f64 = 1.8;
 /// Goal draws per leg before giving up.
 const GOAL_TRIES: usize = 60;
 
@@ -119,10 +125,18 @@ pub fn generate(world: &World, spec: &TrajectorySpec, max_steps: usize) -> Resul
     let goals = spec.task.goals(&mut rng);
     for leg in 0..goals {
         let from = *waypoints.last().unwrap();
+        let last_leg = leg + 1 == goals && spec.task != Task::Wander;
         let (goal, path) = (0..GOAL_TRIES)
             .find_map(|_| {
                 let goal = pick_goal(world, from, spec.range, &mut rng)?;
-                Some((goal, find_path(world, from, goal, MAX_EXPANSIONS)?))
+                // LoopNav draws C around B only; we also keep the way back
+                // from the last goal at least half a range long.
+                if last_leg && horizontal_distance(goal, a) < 0.5 * spec.range as f64 {
+                    return None;
+                }
+                let path = find_path(world, from, goal, MAX_EXPANSIONS)?;
+                // Goals behind cliffs or water would need long detours; draw again.
+                (path.len() as f64 <= DETOUR * horizontal_distance(from, goal) + 10.0).then_some((goal, path))
             })
             .ok_or(TrajectoryError::NoGoal { leg, tries: GOAL_TRIES })?;
         state = rec.follow(state, path, Phase::Outbound, leg, spec.task, &mut rng)?;
@@ -133,11 +147,21 @@ pub fn generate(world: &World, spec: &TrajectorySpec, max_steps: usize) -> Resul
     }
     let returning_point = rec.steps.len();
     if spec.task != Task::Wander {
-        let path = find_path(world, *waypoints.last().unwrap(), a, MAX_EXPANSIONS)
+        let from = *waypoints.last().unwrap();
+        let path = find_path(world, from, a, MAX_EXPANSIONS)
+            .filter(|p| p.len() as f64 <= DETOUR * horizontal_distance(from, a) + 10.0)
             .ok_or(TrajectoryError::NoGoal { leg: goals, tries: 1 })?;
         rec.follow(state, path, Phase::Return, goals, spec.task, &mut rng)?;
+        let back = rec.steps.len() - returning_point;
+        if matches!(spec.task, Task::Aba | Task::Abca) && back > LOOPNAV_MAX_RETURN {
+            return Err(TrajectoryError::ReturnTooLong(back));
+        }
     }
     Ok(Trajectory { spec: *spec, steps: rec.steps, returning_point, waypoints })
+}
+
+fn horizontal_distance(p: [i32; 3], q: [i32; 3]) -> f64 {
+    (((p[0] - q[0]).pow(2) + (p[2] - q[2]).pow(2)) as f64).sqrt()
 }
 
 /// A standable surface cell near the world's centre, on dry land.
