@@ -48,6 +48,11 @@ pub fn fbm2(seed: u64, x: f64, z: f64, scale: f64, octaves: u32) -> f64 {
     total / norm
 }
 
+/// 0 below `lo`, 1 above `hi`, a smooth cubic between.
+pub fn smoothstep(lo: f64, hi: f64, v: f64) -> f64 {
+    smooth(((v - lo) / (hi - lo)).clamp(0.0, 1.0))
+}
+
 fn smooth(t: f64) -> f64 {
     t * t * (3.0 - 2.0 * t)
 }

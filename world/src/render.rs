@@ -5,6 +5,7 @@ use glam::DVec3;
 use memory::{Intrinsics, Pose};
 
 use crate::blocks::{Block, Face};
+use crate::noise::smoothstep;
 use crate::terrain::{HEIGHT, World};
 
 /// What the renderer draws beyond the geometry.
@@ -155,9 +156,4 @@ fn sky_colour(elevation: f64) -> [f64; 3] {
     let t = elevation.clamp(0.0, 1.0).sqrt();
     let (horizon, zenith) = ([196.0, 218.0, 240.0], [92.0, 142.0, 222.0]);
     [0, 1, 2].map(|c| horizon[c] + (zenith[c] - horizon[c]) * t)
-}
-
-fn smoothstep(lo: f64, hi: f64, v: f64) -> f64 {
-    let t = ((v - lo) / (hi - lo)).clamp(0.0, 1.0);
-    t * t * (3.0 - 2.0 * t)
 }

@@ -3,7 +3,7 @@
 //! `(x, y, z)` fills the unit cube `[x, x+1) × [y, y+1) × [z, z+1)`.
 
 use crate::blocks::{Block, WOOLS};
-use crate::noise::{Rng, fbm2, hash, value2};
+use crate::noise::{Rng, fbm2, hash, smoothstep, value2};
 
 /// Blocks along x and z of a default world: room for ABCA legs of ±50 blocks
 /// each from the centre plus the view distance.
@@ -363,11 +363,6 @@ impl World {
             }
         }
     }
-}
-
-fn smoothstep(lo: f64, hi: f64, v: f64) -> f64 {
-    let t = ((v - lo) / (hi - lo)).clamp(0.0, 1.0);
-    t * t * (3.0 - 2.0 * t)
 }
 
 #[cfg(test)]

@@ -5,7 +5,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::agent::{Action, MAX_TURN_DEG, PathFollower, PlayerState, find_path, stand_height, standable, step, wrap_deg};
+use crate::agent::{Action, MAX_TURN_DEG, PathFollower, PlayerState, find_path, standable, step, wrap_deg};
 use crate::noise::{Rng, hash};
 use crate::terrain::World;
 
@@ -185,7 +185,6 @@ fn pick_goal(world: &World, from: [i32; 3], range: i32, rng: &mut Rng) -> Option
     let (x, z) = (from[0] + dx, from[2] + dz);
     let y = world.top(x, z)? + 1;
     ((y - from[1]).abs() <= 10 && standable(world, x, y, z)).then_some([x, y, z])
-        .or_else(|| stand_height(world, x, z, from[1], 10).filter(|&y| world.top(x, z) == Some(y - 1)).map(|y| [x, y, z]))
 }
 
 struct Recorder<'w> {
