@@ -10,6 +10,12 @@
 //!    `w_o − w_t·Δt_i` falls below the current n-th best `s*` (every older
 //!    one is worse still); the previous plan's frames are evaluated first so
 //!    that `s*` starts high;
+//!    with the exact estimator it also skips a frame when a bound in pose
+//!    space rules it out: frames are grouped by camera cell (6 blocks) and
+//!    view direction (20° of yaw and of pitch), each group keeps a polytope
+//!    that contains all its frusta, and `Vol(V_t ∩ group)/Vol(V_t)` (one clip
+//!    per group and query) bounds every member's overlap — the bound that
+//!    prunes loops, where every box meets the target's;
 //! 3. fills the remaining slots with zero-overlap frames, newest first, whose
 //!    score `−w_t·Δt_i` is known without any geometry.
 //!
@@ -18,11 +24,12 @@
 
 use std::collections::{BinaryHeap, HashMap, HashSet};
 
+use glam::DVec3;
 use rstar::{AABB, RTree, RTreeObject};
 
 use crate::error::InputError;
-use crate::frustum::Frustum;
-use crate::overlap::Estimator;
+use crate::frustum::{Frustum, Plane};
+use crate::overlap::{Estimator, Polytope};
 use crate::policy::{ContextPlan, MemoryFrame, Policy, Ranking, SelectedFrame, age, rank_order, select_among};
 
 struct Entry {
@@ -49,6 +56,64 @@ pub struct SelectionStats {
     pub box_candidates: usize,
     /// Overlap evaluations actually computed.
     pub overlap_evaluations: usize,
+    /// Pose-space group bounds computed (one clip each).
+    pub group_bounds: usize,
+}
+
+/// Side of a group's camera cell, in world units.
+const GROUP_CELL: f64 = 6.0;
+/// Width of a group's yaw and pitch bins, degrees.
+const GROUP_ANGLE_DEG: f64 = 20.0;
+/// Added to every group bound so that rounding in the clipper can never make
+/// a member's computed overlap exceed its group's bound.
+const BOUND_MARGIN: f64 = 1e-6;
+/// Smaller groups are cheaper to evaluate member by member than to bound.
+const MIN_GROUP_FOR_BOUND: usize = 3;
+
+/// Frames with nearby cameras looking in similar directions, and a polytope
+/// containing all their frusta: half-spaces with the first member's six
+/// plane normals and the six axis directions, each pushed out to the
+/// farthest corner of any member.
+struct Group {
+    planes: Vec<Plane>,
+    members: usize,
+}
+
+impl Group {
+    fn new(first: &Frustum) -> Group {
+        let axes = [DVec3::X, DVec3::NEG_X, DVec3::Y, DVec3::NEG_Y, DVec3::Z, DVec3::NEG_Z];
+        let normals = first.planes().iter().map(|p| p.normal).chain(axes);
+        Group { planes: normals.map(|normal| Plane { normal, offset: f64::NEG_INFINITY }).collect(), members: 0 }
+    }
+
+    fn add(&mut self, f: &Frustum) {
+        self.members += 1;
+        for plane in &mut self.planes {
+            for c in f.corners() {
+                plane.offset = plane.offset.max(plane.normal.dot(*c));
+            }
+        }
+    }
+
+    /// An upper bound on the overlap of `target` with any member.
+    fn overlap_bound(&self, target: &Frustum) -> f64 {
+        let mut poly = Polytope::from_frustum(target);
+        for plane in &self.planes {
+            poly.clip(plane, 0.0);
+            if poly.is_empty() {
+                return BOUND_MARGIN;
+            }
+        }
+        (poly.volume() / target.volume()).clamp(0.0, 1.0) + BOUND_MARGIN
+    }
+}
+
+fn group_key(f: &Frustum) -> [i64; 5] {
+    let p = f.pose().position() / GROUP_CELL;
+    let fwd = f.pose().forward();
+    let yaw = fwd.x.atan2(fwd.z).to_degrees();
+    let pitch = fwd.y.clamp(-1.0, 1.0).asin().to_degrees();
+    [p.x.floor() as i64, p.y.floor() as i64, p.z.floor() as i64, (yaw / GROUP_ANGLE_DEG).floor() as i64, (pitch / GROUP_ANGLE_DEG).floor() as i64]
 }
 
 #[derive(Default)]
@@ -58,6 +123,9 @@ pub struct FrameMemory {
     by_recency: Vec<usize>,
     slot_of: HashMap<u64, usize>,
     tree: RTree<Entry>,
+    groups: Vec<Group>,
+    group_of: Vec<usize>,
+    group_index: HashMap<[i64; 5], usize>,
 }
 
 impl FrameMemory {
@@ -94,6 +162,13 @@ impl FrameMemory {
         self.by_recency.insert(pos, slot);
         self.slot_of.insert(frame.id, slot);
         self.tree.insert(Entry { slot, envelope: envelope(&frame.frustum) });
+        let next_group = self.groups.len();
+        let g = *self.group_index.entry(group_key(&frame.frustum)).or_insert(next_group);
+        if g == next_group {
+            self.groups.push(Group::new(&frame.frustum));
+        }
+        self.groups[g].add(&frame.frustum);
+        self.group_of.push(g);
         self.frames.push(frame);
         Ok(())
     }
@@ -107,13 +182,14 @@ impl FrameMemory {
             Ranking::Recency => {
                 // The newest n frames are all that recency can pick.
                 let newest: Vec<&MemoryFrame> = self.by_recency.iter().rev().take(n).map(|&s| &self.frames[s]).collect();
-                let stats = SelectionStats { box_candidates: 0, overlap_evaluations: newest.len() };
+                let stats = SelectionStats { overlap_evaluations: newest.len(), ..SelectionStats::default() };
                 (select_among(policy, target, &newest), stats)
             }
             Ranking::GreedyCoverage => {
                 // Coverage changes every round; scored by brute force.
                 let all: Vec<&MemoryFrame> = self.frames.iter().collect();
-                let stats = SelectionStats { box_candidates: all.len(), overlap_evaluations: all.len() * n };
+                let stats =
+                    SelectionStats { box_candidates: all.len(), overlap_evaluations: all.len() * n, ..SelectionStats::default() };
                 (select_among(policy, target, &all), stats)
             }
         }
@@ -148,6 +224,10 @@ impl FrameMemory {
         let recency_key = |s: &usize| (self.frames[*s].time, self.frames[*s].id);
         candidates.sort_unstable_by_key(|s| std::cmp::Reverse(recency_key(s)));
 
+        // Group bounds hold for the exact overlap only (an estimate may
+        // exceed them), and only rank correctly while the score grows with it.
+        let mut group_bounds: Option<HashMap<usize, f64>> =
+            (matches!(policy.estimator, Estimator::Exact) && policy.weights.overlap > 0.0).then(HashMap::new);
         let mut best = TopN::new(n);
         let mut done: HashSet<usize> = HashSet::new();
         let is_candidate: HashSet<usize> = candidates.iter().copied().collect();
@@ -165,9 +245,19 @@ impl FrameMemory {
                 if done.contains(&slot) {
                     continue;
                 }
-                let upper = policy.weights.score(1.0, age(self.frames[slot].time, t_now));
-                if best.cannot_admit(upper) {
+                let frame_age = age(self.frames[slot].time, t_now);
+                if best.cannot_admit(policy.weights.score(1.0, frame_age)) {
                     break; // older candidates have lower bounds still
+                }
+                let g = self.group_of[slot];
+                if let Some(bounds) = group_bounds.as_mut().filter(|_| self.groups[g].members >= MIN_GROUP_FOR_BOUND) {
+                    let bound = *bounds.entry(g).or_insert_with(|| {
+                        stats.group_bounds += 1;
+                        self.groups[g].overlap_bound(target)
+                    });
+                    if best.cannot_admit(policy.weights.score(bound, frame_age)) {
+                        continue;
+                    }
                 }
                 done.insert(slot);
                 stats.overlap_evaluations += 1;
