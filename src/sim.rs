@@ -25,6 +25,9 @@ pub fn parse_pose5(s: &str) -> Result<Pose5, String> {
     let v: Vec<f64> = s.split(',').map(|p| p.trim().parse::<f64>()).collect::<Result<_, _>>()
         .map_err(|_| format!("expected five numbers x,y,z,pitch,yaw, got {s:?}"))?;
     match v[..] {
+        [x, y, z, ..] if [x, y, z].iter().any(|c| c.abs() > 1e6) => {
+            Err(format!("x, y and z must lie within ±1e6 blocks (a world spans 384), got {s:?}"))
+        }
         [x, y, z, pitch, yaw] if v.iter().all(|n| n.is_finite()) => Ok(Pose5 { x, y, z, pitch, yaw }),
         _ => Err(format!("expected five finite numbers x,y,z,pitch,yaw, got {s:?}")),
     }

@@ -133,6 +133,7 @@ fn bad_sim_input_names_the_flag() {
         (vec!["sim", "loopnav", "--out", o, "--tasks", "abc"], "--tasks"),
         (vec!["sim", "render", "--out", o, "--pose", "1,2,3"], "--pose"),
         (vec!["sim", "render", "--out", o, "--pose", "1,2,3,nan,0"], "--pose"),
+        (vec!["sim", "render", "--out", o, "--pose", "1e300,2,3,0,0"], "--pose"),
         (vec!["sim", "render", "--out", o, "--probe", "64,0"], "--probe"),
         (vec!["sim", "render", "--out", o, "--biome", "jungle"], "--biome"),
     ] {
