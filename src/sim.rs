@@ -70,15 +70,13 @@ fn threads() -> usize {
 fn write_plan(out: &Path, kind: &str, seed: u64, plan: &[Planned], size: (u32, u32)) -> Result<()> {
     let k = intrinsics(size)?;
     let progress = bar(plan.len(), kind);
-    let index = suite::write_suite(out, kind, seed, plan, &k, &RenderSettings::default(), threads(), &|name| {
+    let (index, frames) = suite::write_suite(out, kind, seed, plan, &k, &RenderSettings::default(), threads(), &|name| {
         progress.set_message(name.to_string());
         progress.inc(1);
     })
     .map_err(|e| anyhow::anyhow!(e))?;
     progress.finish();
-    let text = std::fs::read_to_string(&index)?;
-    let v: serde_json::Value = serde_json::from_str(&text)?;
-    println!("wrote {} trajectories, {} frames at {}x{} -> {}", plan.len(), v["frames"], size.0, size.1, index.display());
+    println!("wrote {} trajectories, {frames} frames at {}x{} -> {}", plan.len(), size.0, size.1, index.display());
     Ok(())
 }
 
@@ -139,7 +137,7 @@ pub fn render_one(out: &Path, seed: u64, pose: Option<Pose5>, biome: Option<Biom
 /// corners and where this crate's camera projects them (for checking
 /// against OpenCV).
 fn face_under_pixel(world: &World, camera: &Pose, k: &Intrinsics, settings: &RenderSettings, u: u32, v: u32) -> serde_json::Value {
-    let dir = camera.rotation() * glam::DVec3::new((u as f64 - k.cx) / k.fx, (v as f64 - k.cy) / k.fy, 1.0);
+    let dir = camera.rotation() * k.unproject(glam::DVec2::new(u as f64, v as f64), 1.0);
     let Some(hit) = cast(world, camera.position(), dir, settings.view_distance / dir.length()) else {
         return serde_json::json!({ "pixel": [u, v], "hit": false });
     };

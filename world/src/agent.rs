@@ -163,12 +163,6 @@ pub fn standable(world: &World, x: i32, y: i32, z: i32) -> bool {
         && world.get(x, y - 1, z).is_standable()
 }
 
-/// The standable cell of column `(x, z)` closest in height to `near_y`
-/// within `reach` blocks, if any.
-pub fn stand_height(world: &World, x: i32, z: i32, near_y: i32, reach: i32) -> Option<i32> {
-    (0..=reach).flat_map(|d| [near_y + d, near_y - d]).find(|&y| standable(world, x, y, z))
-}
-
 /// The standable surface cell nearest the world's centre (optionally in
 /// `biome`), searching outward ring by ring.
 pub fn spawn_point(world: &World, biome: Option<crate::terrain::Biome>) -> Option<[i32; 3]> {
@@ -284,10 +278,6 @@ impl PathFollower {
         PathFollower { path, next: 1 }
     }
 
-    pub fn done(&self) -> bool {
-        self.next >= self.path.len()
-    }
-
     /// Waypoints not yet reached: the progress measure for stuck detection.
     pub fn remaining(&self) -> usize {
         self.path.len().saturating_sub(self.next)
@@ -338,7 +328,7 @@ mod tests {
         // Find a flat, open run along +z to walk on.
         for x in 8..56 {
             for z in 8..40 {
-                let Some(y) = stand_height(&world, x, z, 30, 30) else { continue };
+                let Some(y) = world.top(x, z).map(|y| y + 1) else { continue };
                 if (0..8).all(|d| standable(&world, x, y, z + d)) {
                     let s = PlayerState::at_cell([x, y, z], 0.0);
                     let after = walk(&world, s, Action { forward: true, ..Action::default() }, 10);

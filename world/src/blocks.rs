@@ -1,7 +1,7 @@
 //! Block materials: colours and simple per-face textures, chosen so that
 //! biomes and landmarks look different from each other at 64×64.
 
-use crate::noise::hash;
+use crate::noise::unit;
 
 /// One voxel. `Air` is empty; everything else stops rays and players
 /// (water included: the player walks on it, but paths avoid it).
@@ -162,10 +162,7 @@ impl Block {
     /// down from the top of a side face) of `face` on the block at `cell`.
     pub fn texel(self, face: Face, cell: [i32; 3], tu: u32, tv: u32) -> [f64; 3] {
         let base = self.base_rgb(face);
-        let noise = |salt: i64| {
-            let h = hash(self as u64, &[cell[0] as i64, cell[1] as i64, cell[2] as i64, tu as i64, tv as i64, salt]);
-            (h >> 11) as f64 / (1u64 << 53) as f64 - 0.5
-        };
+        let noise = |salt: i64| unit(self as u64, &[cell[0] as i64, cell[1] as i64, cell[2] as i64, tu as i64, tv as i64, salt]) - 0.5;
         let factor = match self.pattern(face) {
             Pattern::Speckle(amp) => 1.0 + amp * noise(0),
             Pattern::Grain => 1.0 + 0.25 * (if tu % 3 == 0 { -0.5 } else { 0.1 }) + 0.1 * noise(0),

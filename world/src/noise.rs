@@ -1,6 +1,7 @@
 //! Seeded hashing and value noise: the only randomness the world uses, so a
 //! seed fixes every block and every texel on every machine.
 
+
 /// A 64-bit avalanche hash of several integers (SplitMix64's finaliser,
 /// chained). Equal inputs give equal outputs everywhere.
 pub fn hash(seed: u64, parts: &[i64]) -> u64 {
@@ -18,9 +19,14 @@ fn mix(mut z: u64) -> u64 {
     z ^ (z >> 31)
 }
 
-/// A hash mapped to [0, 1).
+/// A hash of the parts mapped to [0, 1).
 pub fn unit(seed: u64, parts: &[i64]) -> f64 {
-    (hash(seed, parts) >> 11) as f64 / (1u64 << 53) as f64
+    unit_of(hash(seed, parts))
+}
+
+/// The top 53 bits of `h` as a float in [0, 1).
+pub fn unit_of(h: u64) -> f64 {
+    (h >> 11) as f64 / (1u64 << 53) as f64
 }
 
 /// Smooth 2-D value noise in [0, 1) with lattice spacing `scale` blocks.
@@ -62,7 +68,9 @@ fn lerp(a: f64, b: f64, t: f64) -> f64 {
 }
 
 /// A small deterministic generator for choices made while building the world
-/// and its trajectories (SplitMix64).
+/// and its trajectories. (Its stream is this crate's own — `mix` of a
+/// SplitMix64-style counter — and fixes every committed figure, so it is not
+/// swapped for the memory crate's `SplitMix64`, whose stream differs.)
 #[derive(Clone, Debug)]
 pub struct Rng(u64);
 
@@ -78,7 +86,7 @@ impl Rng {
 
     /// Uniform in [0, 1).
     pub fn unit(&mut self) -> f64 {
-        (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64
+        unit_of(self.next_u64())
     }
 
     /// Uniform integer in [lo, hi).

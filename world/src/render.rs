@@ -1,7 +1,7 @@
 //! Ray casting through the voxel grid with the project's OpenCV camera:
 //! RGB (u8) and metric depth (z along the optical axis, f32).
 
-use glam::DVec3;
+use glam::{DVec2, DVec3};
 use memory::{Intrinsics, Pose};
 
 use crate::blocks::{Block, Face};
@@ -108,8 +108,7 @@ pub fn render(world: &World, pose: &Pose, k: &Intrinsics, settings: &RenderSetti
     let origin = pose.position();
     for v in 0..h {
         for u in 0..w {
-            let d_cam = DVec3::new((u as f64 - k.cx) / k.fx, (v as f64 - k.cy) / k.fy, 1.0);
-            let dir = rot * d_cam;
+            let dir = rot * k.unproject(DVec2::new(u as f64, v as f64), 1.0);
             let len = dir.length();
             let i = (v * w + u) as usize;
             let sky = sky_colour(dir.y / len);

@@ -212,7 +212,8 @@ pub struct SuiteEntry {
 }
 
 /// Writes every planned trajectory under `out` on `threads` threads, then
-/// `index.json`. `progress` is called once per finished trajectory.
+/// `index.json`; returns that file's path and the total number of frames.
+/// `progress` is called once per finished trajectory.
 pub fn write_suite(
     out: &Path,
     kind: &str,
@@ -222,7 +223,7 @@ pub fn write_suite(
     settings: &RenderSettings,
     threads: usize,
     progress: &(dyn Fn(&str) + Sync),
-) -> Result<PathBuf, String> {
+) -> Result<(PathBuf, usize), String> {
     std::fs::create_dir_all(out).map_err(|e| format!("cannot create {}: {e}", out.display()))?;
     let next = AtomicUsize::new(0);
     let results: Vec<Result<SuiteEntry, String>> = std::thread::scope(|scope| {
@@ -256,6 +257,7 @@ pub fn write_suite(
         all.into_iter().map(|(_, r)| r).collect()
     });
     let entries = results.into_iter().collect::<Result<Vec<_>, _>>()?;
+    let frames = entries.iter().map(|e| e.frames).sum::<usize>();
     let split = plan.first().map(|p| Split::of_world_seed(p.spec.world_seed)).unwrap_or(Split::Test);
     let index = serde_json::json!({
         "format": SUITE_FORMAT,
@@ -264,10 +266,10 @@ pub fn write_suite(
         "seed": seed,
         "width": k.width,
         "height": k.height,
-        "frames": entries.iter().map(|e| e.frames).sum::<usize>(),
+        "frames": frames,
         "trajectories": entries,
     });
     let path = out.join("index.json");
     std::fs::write(&path, serde_json::to_string_pretty(&index).unwrap()).map_err(|e| format!("{}: {e}", path.display()))?;
-    Ok(path)
+    Ok((path, frames))
 }

@@ -3,7 +3,7 @@
 //! `(x, y, z)` fills the unit cube `[x, x+1) × [y, y+1) × [z, z+1)`.
 
 use crate::blocks::{Block, WOOLS};
-use crate::noise::{Rng, fbm2, hash, smoothstep, value2};
+use crate::noise::{Rng, fbm2, hash, smoothstep, unit_of, value2};
 
 /// Blocks along x and z of a default world: room for ABCA legs of ±50 blocks
 /// each from the centre plus the view distance.
@@ -191,7 +191,7 @@ impl World {
                     _ => 0.0,
                 };
                 let roll = hash(self.seed ^ 0x7ee, &[x as i64, z as i64]);
-                if (roll >> 11) as f64 / (1u64 << 53) as f64 >= density {
+                if unit_of(roll) >= density {
                     continue;
                 }
                 let mut rng = Rng::new(roll);
