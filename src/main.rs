@@ -3,6 +3,7 @@
 mod bench;
 mod demo;
 mod geometry;
+mod plan;
 mod sim;
 
 use std::io::Read;
@@ -35,6 +36,19 @@ enum Command {
     Sim {
         #[command(subcommand)]
         what: SimCommand,
+    },
+    /// Write each trajectory's context plans (plan-<policy>.npy) beside a suite or dataset, for training.
+    Plan {
+        /// A folder written by `worldpack sim dataset` or `sim loopnav`.
+        #[arg(long)]
+        data: PathBuf,
+        /// Comma-separated policies: baseline, nearest_frame_packing, memory_retrieval, worldpack, worldmem_greedy.
+        #[arg(long, value_delimiter = ',', default_value = "baseline,nearest_frame_packing,memory_retrieval,worldpack",
+              value_parser = plan::parse_policy)]
+        policies: Vec<memory::PolicyKind>,
+        /// Always put the most recent frame in the first slot.
+        #[arg(long)]
+        keep_last: bool,
     },
     /// Answer geometry requests: JSON on stdin (one object or an array), JSON on stdout.
     ///
@@ -164,6 +178,7 @@ fn main() -> ExitCode {
                 report(sim::render_one(&out, seed, pose, biome, size, probe), "sim render")
             }
         },
+        Command::Plan { data, policies, keep_last } => report(plan::run(&data, &policies, keep_last), "plan"),
         Command::Geometry { input } => {
             let text = match input {
                 Some(path) => std::fs::read_to_string(&path).map_err(|e| format!("cannot read {}: {e}", path.display())),

@@ -52,7 +52,7 @@ fn intrinsics(size: (u32, u32)) -> Result<Intrinsics> {
     suite::default_intrinsics(size.0, size.1).map_err(|e| anyhow::anyhow!("--size: {e}"))
 }
 
-fn bar(len: usize, what: &str) -> ProgressBar {
+pub fn bar(len: usize, what: &str) -> ProgressBar {
     let bar = ProgressBar::new(len as u64);
     bar.set_style(
         ProgressStyle::with_template("{prefix} [{bar:30}] {pos}/{len} {msg} ({elapsed}, ~{eta} left)")
@@ -63,7 +63,7 @@ fn bar(len: usize, what: &str) -> ProgressBar {
     bar
 }
 
-fn threads() -> usize {
+pub fn threads() -> usize {
     std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1)
 }
 

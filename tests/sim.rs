@@ -144,3 +144,52 @@ fn bad_sim_input_names_the_flag() {
     }
     let _ = std::fs::remove_dir_all(&out);
 }
+
+#[test]
+fn plan_files_are_the_memory_crate_selection() {
+    let out = temp_dir("plan");
+    let dir = out.to_str().unwrap();
+    let (code, _, stderr) = worldpack(&["sim", "loopnav", "--per-cell", "1", "--ranges", "5", "--tasks", "aba", "--out", dir]);
+    assert_eq!(code, 0, "{stderr}");
+    let (code, stdout, stderr) = worldpack(&["plan", "--data", dir, "--policies", "baseline,worldpack"]);
+    assert_eq!(code, 0, "{stderr}");
+    assert!(stdout.contains("wrote plans for 1 trajectories"), "{stdout}");
+    let described = json(&out.join("plans.json"));
+    let rates: Vec<u64> = described["policies"][1]["rates"].as_array().unwrap().iter().map(|r| r.as_u64().unwrap()).collect();
+    assert_eq!(rates, [vec![1; 2], vec![4; 4], vec![16; 16]].concat());
+
+    let traj = out.join(json(&out.join("index.json"))["trajectories"][0]["dir"].as_str().unwrap());
+    let k: Intrinsics = serde_json::from_value(json(&traj.join("meta.json"))["intrinsics"].clone()).unwrap();
+    let frames: Vec<memory::MemoryFrame> = poses(&traj)
+        .into_iter()
+        .enumerate()
+        .map(|(t, p)| memory::MemoryFrame { id: t as u64, time: t as u64, frustum: Frustum::new(p, k).unwrap() })
+        .collect();
+    let (shape, baseline) = world::npy::read::<i32>(&traj.join("plan-baseline.npy")).unwrap();
+    assert_eq!(shape, [frames.len(), 4]);
+    for t in 0..frames.len() {
+        let want: Vec<i32> = (1..=4).map(|d| if d <= t { (t - d) as i32 } else { -1 }).collect();
+        assert_eq!(&baseline[t * 4..t * 4 + 4], &want[..], "baseline row {t}");
+    }
+    // The written plans are the brute-force selection over every earlier frame.
+    let (shape, packed) = world::npy::read::<i32>(&traj.join("plan-worldpack.npy")).unwrap();
+    assert_eq!(shape, [frames.len(), 22]);
+    assert!(packed[..22].iter().all(|&i| i == -1), "frame 0 has no context");
+    let policy = memory::Policy::preset(memory::PolicyKind::WorldPack);
+    for t in (1..frames.len()).step_by(7) {
+        let plan = memory::select(&policy, &frames[t].frustum, &frames[..t]);
+        let want: Vec<i32> = plan.slots.iter().map(|s| s.frame.map_or(-1, |f| f.id as i32)).collect();
+        assert_eq!(&packed[t * 22..(t + 1) * 22], &want[..], "worldpack row {t}");
+    }
+    let _ = std::fs::remove_dir_all(&out);
+}
+
+#[test]
+fn bad_plan_input_names_the_flag() {
+    let (code, _, stderr) = worldpack(&["plan", "--data", "/nonexistent/suite"]);
+    assert_eq!(code, 2);
+    assert!(stderr.contains("--data") && stderr.contains("worldpack sim dataset"), "{stderr}");
+    let (code, _, stderr) = worldpack(&["plan", "--data", "/tmp", "--policies", "worldpack,bogus"]);
+    assert_eq!(code, 2);
+    assert!(stderr.contains("--policies") && stderr.contains("bogus"), "{stderr}");
+}

@@ -29,6 +29,7 @@ macro_rules! element {
 
 element!(u8, "|u1");
 element!(u16, "<u2");
+element!(i32, "<i4");
 element!(f32, "<f4");
 element!(f64, "<f8");
 

@@ -1,0 +1,145 @@
+//! `worldpack plan`: the context plans a model trains on, written beside a
+//! suite or dataset by the same selection code that serves the model, so
+//! training and serving pick memories identically.
+
+use std::path::Path;
+use std::sync::atomic::{AtomicUsize, Ordering};
+
+use anyhow::{Context, Result, bail};
+use memory::{FrameMemory, Frustum, Intrinsics, MemoryFrame, Policy, PolicyKind, Pose};
+use serde::Deserialize;
+
+use crate::sim::{bar, threads};
+
+pub const PLANS_FORMAT: &str = "worldpack-plans/1";
+
+#[derive(Deserialize)]
+struct Index {
+    trajectories: Vec<Entry>,
+}
+
+#[derive(Deserialize)]
+struct Entry {
+    dir: String,
+}
+
+#[derive(Deserialize)]
+struct Meta {
+    intrinsics: Intrinsics,
+}
+
+/// The file a policy's plans go to inside each trajectory folder.
+pub fn plan_file(kind: PolicyKind) -> String {
+    format!("plan-{}.npy", policy_name(kind))
+}
+
+pub fn parse_policy(s: &str) -> Result<PolicyKind, String> {
+    serde_json::from_value(serde_json::Value::String(s.to_string())).map_err(|_| {
+        format!("unknown policy {s:?}; one of baseline, nearest_frame_packing, memory_retrieval, worldpack, worldmem_greedy")
+    })
+}
+
+fn policy_name(kind: PolicyKind) -> String {
+    serde_json::to_value(kind).ok().and_then(|v| v.as_str().map(str::to_string)).unwrap_or_default()
+}
+
+/// For every trajectory under `data` and every policy, writes
+/// `plan-<policy>.npy`: int32 `(T, slots)`, row `t` the frame indices (in
+/// slot order, `-1` for an empty slot) chosen as context for predicting frame
+/// `t` from frames `0..t`, with frame `t`'s pose as the query. Row 0 is all
+/// `-1`. Then `plans.json` at the root describes each policy's slots.
+pub fn run(data: &Path, kinds: &[PolicyKind], keep_last: bool) -> Result<()> {
+    let index_path = data.join("index.json");
+    let text = std::fs::read_to_string(&index_path)
+        .with_context(|| format!("--data: no suite at {} (make one with `worldpack sim dataset`)", index_path.display()))?;
+    let index: Index = serde_json::from_str(&text).with_context(|| format!("--data: {} is not a suite index", index_path.display()))?;
+    if kinds.is_empty() {
+        bail!("--policies: name at least one policy");
+    }
+    let policies: Vec<Policy> = kinds.iter().map(|&k| Policy { keep_last, ..Policy::preset(k) }).collect();
+
+    let progress = bar(index.trajectories.len(), "plan");
+    let next = AtomicUsize::new(0);
+    let failures: Vec<anyhow::Error> = std::thread::scope(|scope| {
+        let workers: Vec<_> = (0..threads())
+            .map(|_| {
+                scope.spawn(|| {
+                    let mut failed = Vec::new();
+                    while let Some(entry) = index.trajectories.get(next.fetch_add(1, Ordering::Relaxed)) {
+                        let dir = data.join(&entry.dir);
+                        if let Err(e) = plan_trajectory(&dir, &policies) {
+                            failed.push(e.context(dir.display().to_string()));
+                        }
+                        progress.set_message(entry.dir.clone());
+                        progress.inc(1);
+                    }
+                    failed
+                })
+            })
+            .collect();
+        workers.into_iter().flat_map(|w| w.join().expect("plan worker panicked")).collect()
+    });
+    progress.finish();
+    if let Some(first) = failures.into_iter().next() {
+        return Err(first);
+    }
+
+    let described: Vec<_> = policies
+        .iter()
+        .map(|p| {
+            serde_json::json!({
+                "name": policy_name(p.kind),
+                "file": plan_file(p.kind),
+                "rates": p.packing.rates().collect::<Vec<_>>(),
+                "policy": p,
+            })
+        })
+        .collect();
+    let out = serde_json::json!({
+        "format": PLANS_FORMAT,
+        "query": "the target frame's pose; candidates are all earlier frames of the trajectory",
+        "empty_slot": -1,
+        "policies": described,
+    });
+    std::fs::write(data.join("plans.json"), serde_json::to_string_pretty(&out)?)?;
+    println!("wrote plans for {} trajectories, policies {:?} -> {}", index.trajectories.len(),
+        kinds.iter().map(|&k| policy_name(k)).collect::<Vec<_>>(), data.join("plans.json").display());
+    Ok(())
+}
+
+fn plan_trajectory(dir: &Path, policies: &[Policy]) -> Result<()> {
+    let meta: Meta = serde_json::from_str(&std::fs::read_to_string(dir.join("meta.json"))?).context("meta.json")?;
+    let (shape, poses) = world::npy::read::<f64>(&dir.join("poses.npy")).context("poses.npy")?;
+    if shape.len() != 3 || shape[1..] != [4, 4] {
+        bail!("poses.npy: expected shape (T, 4, 4), got {shape:?}");
+    }
+    let frusta = poses
+        .chunks_exact(16)
+        .map(|m| {
+            let rotation = [[m[0], m[1], m[2]], [m[4], m[5], m[6]], [m[8], m[9], m[10]]];
+            let pose = Pose::from_rows(rotation, [m[3], m[7], m[11]])?;
+            Frustum::new(pose, meta.intrinsics)
+        })
+        .collect::<Result<Vec<_>, _>>()
+        .context("poses.npy")?;
+    for policy in policies {
+        let slots = policy.packing.slots();
+        let mut rows = vec![-1i32; frusta.len() * slots];
+        let mut store = FrameMemory::new();
+        let mut previous = None;
+        for (t, frustum) in frusta.iter().enumerate() {
+            if t > 0 {
+                let (plan, _) = store.select(policy, frustum, previous.as_ref());
+                for (slot, chosen) in plan.slots.iter().enumerate() {
+                    if let Some(f) = chosen.frame {
+                        rows[t * slots + slot] = f.id as i32;
+                    }
+                }
+                previous = Some(plan);
+            }
+            store.insert(MemoryFrame { id: t as u64, time: t as u64, frustum: frustum.clone() })?;
+        }
+        world::npy::write(&dir.join(plan_file(policy.kind)), &[frusta.len(), slots], &rows)?;
+    }
+    Ok(())
+}
