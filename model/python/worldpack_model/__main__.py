@@ -1,0 +1,68 @@
+"""`python -m worldpack_model <stage>`: train-ae, encode, train, export, sample.
+See docs/model.md for the whole recipe."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(prog="worldpack_model", description=__doc__)
+    sub = ap.add_subparsers(dest="stage", required=True)
+
+    def common(p, data=True):
+        if data:
+            p.add_argument("--data", type=Path, required=True, help="a suite from `worldpack sim dataset`")
+        p.add_argument("--run", type=Path, required=True, help="run folder: config, checkpoints, logs")
+        p.add_argument("--device", default="auto", choices=["auto", "cpu", "cuda"])
+        p.add_argument("--threads", type=int, default=0, help="torch CPU threads (0: torch's default)")
+
+    p = sub.add_parser("train-ae", help="train the autoencoder (resumes from run/autoencoder.pt)")
+    common(p)
+    p.add_argument("--steps", type=int, default=4000)
+    p.add_argument("--batch", type=int, default=32)
+    p.add_argument("--lr", type=float, default=1e-3)
+    p.add_argument("--minutes", type=float, help="stop (and checkpoint) after this much wall time")
+
+    p = sub.add_parser("encode", help="cache every frame's scaled latent under run/latents")
+    common(p)
+
+    p = sub.add_parser("train", help="train the CDiT on one policy's plans (resumes from run/cdit-<policy>.pt)")
+    common(p)
+    p.add_argument("--policy", default="worldpack", choices=["baseline", "memory_retrieval", "worldpack", "nearest_frame_packing"])
+    p.add_argument("--steps", type=int, default=20000)
+    p.add_argument("--batch", type=int, default=32)
+    p.add_argument("--lr", type=float, default=3e-4)
+    p.add_argument("--ema", type=float, default=0.999)
+    p.add_argument("--minutes", type=float)
+    p.add_argument("--init-from", type=Path, help="fine-tune from this CDiT checkpoint (its EMA weights)")
+
+    p = sub.add_parser("export", help="write ONNX graphs, manifest.json and references to --out")
+    common(p, data=False)
+    p.add_argument("--policy", default="worldpack", help="which checkpoint: run/cdit-<policy>.pt")
+    p.add_argument("--layouts", default="worldpack,baseline", help="comma-separated context layouts to export")
+    p.add_argument("--data", type=Path, required=True, help="a suite for the reference inputs and metrics (test split)")
+    p.add_argument("--out", type=Path, required=True)
+
+    a = ap.parse_args()
+    import torch
+
+    if a.threads:
+        torch.set_num_threads(a.threads)
+    from . import train
+
+    if a.stage == "train-ae":
+        train.train_autoencoder(a.data, a.run, a.steps, a.batch, a.lr, a.device, a.minutes)
+    elif a.stage == "encode":
+        train.encode(a.data, a.run, a.device)
+    elif a.stage == "train":
+        train.train_cdit(a.data, a.run, a.policy, a.steps, a.batch, a.lr, a.ema, a.device, a.minutes, a.init_from)
+    elif a.stage == "export":
+        from . import export
+
+        export.export(a.run, a.policy, a.layouts.split(","), a.data, a.out, a.device)
+
+
+if __name__ == "__main__":
+    main()

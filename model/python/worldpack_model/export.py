@@ -1,0 +1,347 @@
+"""ONNX export: encoder, decoder and one denoiser graph per context layout,
+`manifest.json` describing every tensor, and PyTorch reference inputs,
+outputs and sampling traces that the torch-free tests check against.
+
+The denoiser graphs of one model share one weights file (`denoiser.weights`,
+ONNX external data), so exporting a second layout costs kilobytes."""
+
+from __future__ import annotations
+
+import hashlib
+import inspect
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+import onnx
+import torch
+from torch import nn
+
+from . import data as wdata
+from .autoencoder import psnr
+from .cdit import CDiT
+from .config import ACTION_NAMES, ACTION_SCALE, LAYOUTS, Layout, ModelConfig, tokens_per_frame
+from .diffusion import Schedule, sample
+from .train import evaluate_autoencoder, load_autoencoder, pick_device, run_config
+
+MANIFEST_FORMAT = "worldpack-model/1"
+OPSET = 18
+IR_VERSION = 10  # ONNX Runtime 1.31 reads IR <= 11; 10 is what opset 18 needs
+REFERENCE_BATCH = 2
+TRACE_STEPS = 4
+
+
+def input_names(layout: Layout) -> list[str]:
+    names = ["x_t", "timestep", "action", "rel_time"]
+    for r in layout.rates:
+        names += [f"context_r{r}", f"context_time_r{r}", f"context_pose_r{r}", f"context_mask_r{r}"]
+    return names
+
+
+class LayoutGraph(nn.Module):
+    """The CDiT with flat inputs in one layout's order, for export."""
+
+    def __init__(self, model: CDiT, layout: Layout):
+        super().__init__()
+        self.model, self.layout = model, layout
+
+    def forward(self, x_t, timestep, action, rel_time, *context):
+        groups = [tuple(context[4 * i: 4 * i + 4]) for i in range(len(self.layout.rates))]
+        return self.model(x_t, timestep, action, rel_time, groups, rates=self.layout.rates)
+
+
+def to_onnx(module: nn.Module, args: tuple, names: list[str], outputs: list[str]) -> onnx.ModelProto:
+    batch = torch.export.Dim("batch", min=1, max=1024)
+    shapes = [{0: batch} for _ in args]
+    fixed = [p for p in inspect.signature(module.forward).parameters.values() if p.kind != p.VAR_POSITIONAL]
+    if len(fixed) < len(args):  # torch.export wants *args' shapes as one nested tuple
+        shapes = shapes[: len(fixed)] + [tuple(shapes[len(fixed):])]
+    program = torch.onnx.export(module, args, input_names=names, output_names=outputs, dynamic_shapes=tuple(shapes),
+                                opset_version=OPSET, dynamo=True, verbose=False)
+    proto = program.model_proto
+    proto.ir_version = IR_VERSION
+    for node in proto.graph.node:  # the exporter's per-node stack traces: most of the file, no use at runtime
+        del node.metadata_props[:]
+    onnx.checker.check_model(proto)
+    return proto
+
+
+def share_weights(protos: dict[str, onnx.ModelProto], weights: Path) -> None:
+    """Moves every initializer of 1 KiB or more into one external-data file,
+    storing identical tensors once (the layouts share all their weights)."""
+    offsets: dict[str, tuple[int, int]] = {}
+    with open(weights, "wb") as f:
+        for proto in protos.values():
+            for init in proto.graph.initializer:
+                raw = onnx.numpy_helper.to_array(init).tobytes()
+                if len(raw) < 1024:
+                    continue
+                # By content alone: the exporter names folded constants differently per graph.
+                key = hashlib.sha256(raw).hexdigest()
+                if key not in offsets:
+                    f.write(b"\0" * ((-f.tell()) % 64))  # 64-byte alignment lets the runtime map it
+                    offsets[key] = (f.tell(), len(raw))
+                    f.write(raw)
+                offset, length = offsets[key]
+                init.ClearField("raw_data")
+                for field in ("float_data", "int64_data", "int32_data", "double_data"):
+                    init.ClearField(field)
+                init.data_location = onnx.TensorProto.EXTERNAL
+                del init.external_data[:]
+                for k, v in (("location", weights.name), ("offset", str(offset)), ("length", str(length))):
+                    entry = init.external_data.add()
+                    entry.key, entry.value = k, v
+
+
+def save_arrays(folder: Path, arrays: dict[str, np.ndarray]) -> None:
+    folder.mkdir(parents=True, exist_ok=True)
+    for name, a in arrays.items():
+        np.save(folder / f"{name}.npy", a)
+
+
+def tensor_spec(name: str, shape: list, dtype: str, meaning: str) -> dict:
+    return {"name": name, "shape": shape, "dtype": dtype, "meaning": meaning}
+
+
+def denoiser_io(cfg: ModelConfig, layout: Layout) -> tuple[list[dict], list[dict]]:
+    c, s = cfg.cdit.latent_channels, cfg.cdit.latent_size
+    ins = [
+        tensor_spec("x_t", ["batch", c, s, s], "float32", "noisy target latent (already multiplied by latent_scale)"),
+        tensor_spec("timestep", ["batch"], "float32", "original DDPM timestep index in [0, timesteps-1], also when respaced"),
+        tensor_spec("action", ["batch", cfg.cdit.action_dim], "float32", "the action leading to the target frame, raw units (see action)"),
+        tensor_spec("rel_time", ["batch"], "float32", "frames from the most recent present context frame to the target (>= 1)"),
+    ]
+    for r, n in zip(layout.rates, layout.counts):
+        ins += [
+            tensor_spec(f"context_r{r}", ["batch", n, c, s, s], "float32", f"{n} context latents at rate {r} (scaled; zeros in empty slots)"),
+            tensor_spec(f"context_time_r{r}", ["batch", n], "float32", "frame time minus target time (negative; 0 in empty slots)"),
+            tensor_spec(f"context_pose_r{r}", ["batch", n, 12], "float32", "context camera in the target camera frame, 3x4 row-major (see pose_embedding)"),
+            tensor_spec(f"context_mask_r{r}", ["batch", n], "float32", "1 = slot holds a frame, 0 = empty (at least one slot per sample must be 1)"),
+        ]
+    outs = [tensor_spec("eps", ["batch", c, s, s], "float32", "predicted noise epsilon")]
+    return ins, outs
+
+
+def reference_rows(source: wdata.PlannedLatents, count: int) -> list[tuple[int, int]]:
+    """Frames on the way back of the first trajectories, where memory matters."""
+    rows = []
+    for i, plans in enumerate(source.plans):
+        t = min(len(plans) - 1, (len(plans) * 3) // 4)
+        rows.append((i, t))
+        if len(rows) == count:
+            break
+    return rows
+
+
+def export(run: Path, policy: str, layout_names: list[str], data: Path, out: Path, device: str) -> None:
+    started = time.time()
+    cfg = run_config(run)
+    dev = pick_device(device)
+    unknown = [n for n in layout_names if n not in LAYOUTS]
+    if unknown:
+        raise SystemExit(f"--layouts: unknown {unknown}; known {sorted(LAYOUTS)}")
+    ckpt_path = run / f"cdit-{policy}.pt"
+    if not ckpt_path.exists():
+        raise SystemExit(f"--policy: no {ckpt_path}; train it with `train --policy {policy}`")
+    ckpt = torch.load(ckpt_path, map_location="cpu")
+    ae = load_autoencoder(run, torch.device("cpu"))
+    model = CDiT(cfg.cdit)
+    model.load_state_dict(ckpt["ema"])
+    model.eval()
+    out.mkdir(parents=True, exist_ok=True)
+    ref = out / "reference"
+
+    # Latents of the reference suite (the test split), encoded now so the export needs no cache.
+    latent_dir = out / ".latents-tmp"
+    latent_dir.mkdir(exist_ok=True)
+    with torch.no_grad():
+        for d in wdata.trajectories(data):
+            rgb = torch.from_numpy(wdata.to_unit_range(np.load(d / "rgb.npy")))
+            z = torch.cat([ae.encoder(c) for c in rgb.split(256)]) * ae.scale
+            np.save(latent_dir / f"{d.name}.npy", z.numpy().astype(np.float16))
+
+    # Autoencoder graphs and references.
+    a = cfg.autoencoder
+    rgb_ref = np.stack([np.load(wdata.trajectories(data)[0] / "rgb.npy")[k] for k in (0, 7)])
+    image = torch.from_numpy(wdata.to_unit_range(rgb_ref))
+    with torch.no_grad():
+        raw = ae.encoder(image)
+        decoded = ae.decoder(raw)
+    protos = {
+        "encoder": to_onnx(ae.encoder, (image,), ["image"], ["latent"]),
+        "decoder": to_onnx(ae.decoder, (raw,), ["latent"], ["image"]),
+    }
+    for name in ("encoder", "decoder"):
+        onnx.save(protos[name], out / f"{name}.onnx")
+    save_arrays(ref / "encoder", {"image": image.numpy(), "latent": raw.numpy()})
+    save_arrays(ref / "decoder", {"latent": raw.numpy(), "image": decoded.numpy()})
+
+    # Denoiser graphs: one per layout, from the same weights.
+    denoisers, layouts_json, trace_inputs = {}, [], None
+    rng = np.random.default_rng(7)
+    for name in layout_names:
+        layout = LAYOUTS[name]
+        missing = set(layout.rates) - set(cfg.cdit.rates)
+        if missing:
+            raise SystemExit(f"--layouts {name}: the model has no projection for rates {sorted(missing)}")
+        source = wdata.PlannedLatents(data, latent_dir, name, layout)
+        batch = source.gather(reference_rows(source, REFERENCE_BATCH))
+        noise = rng.standard_normal(batch.target.shape).astype(np.float32)
+        t = np.array([250.0, 750.0][:REFERENCE_BATCH], np.float32)
+        ab = Schedule(cfg.diffusion).alphas_cumprod[t.astype(int)].astype(np.float32)[:, None, None, None]
+        x_t = np.sqrt(ab) * batch.target + np.sqrt(1 - ab) * noise
+        arrays = {"x_t": x_t, "timestep": t, "action": batch.action, "rel_time": batch.rel_time}
+        for r, g in zip(layout.rates, batch.groups):
+            for key, arr in zip(("context", "context_time", "context_pose", "context_mask"), g):
+                arrays[f"{key}_r{r}"] = arr
+        names = input_names(layout)
+        args = tuple(torch.from_numpy(arrays[n]) for n in names)
+        graph = LayoutGraph(model, layout)
+        with torch.no_grad():
+            eps = graph(*args)
+        denoisers[name] = to_onnx(graph, args, names, ["eps"])
+        save_arrays(ref / f"denoiser_{name}", {**arrays, "eps": eps.numpy()})
+        ins, outs = denoiser_io(cfg, layout)
+        layouts_json.append({
+            "name": name,
+            "file": f"denoiser_{name}.onnx",
+            "slots": [{"rate": r, "count": n, "tokens_per_frame": tokens_per_frame(cfg.cdit.latent_size, cfg.cdit.patch, r)}
+                      for r, n in zip(layout.rates, layout.counts)],
+            "frames": layout.frames,
+            "context_tokens": sum(n * tokens_per_frame(cfg.cdit.latent_size, cfg.cdit.patch, r) for r, n in zip(layout.rates, layout.counts)),
+            "inputs": ins,
+            "outputs": outs,
+        })
+        if trace_inputs is None:
+            trace_inputs = (name, graph, names, arrays)
+    share_weights(denoisers, out / "denoiser.weights")
+    for name, proto in denoisers.items():
+        onnx.save(proto, out / f"denoiser_{name}.onnx")
+
+    # Sampling traces: the reference sampler with injected noise, PyTorch as the denoiser.
+    sched = Schedule(cfg.diffusion)
+    trace_layout, graph, names, arrays = trace_inputs
+
+    def eps_fn(x, t):
+        feed = {**arrays, "x_t": x, "timestep": t}
+        with torch.no_grad():
+            return graph(*(torch.from_numpy(feed[n]) for n in names)).numpy()
+
+    traces = {}
+    for method in ("ancestral", "ddim"):
+        x_T = rng.standard_normal(arrays["x_t"].shape).astype(np.float32)
+        noise = rng.standard_normal((TRACE_STEPS, *x_T.shape)).astype(np.float32)
+        tr = sample(eps_fn, sched, x_T, TRACE_STEPS, method, eta=0.0, noise=noise)
+        save_arrays(ref / f"trace_{method}", {"timesteps": tr.timesteps, "x": tr.x, "eps": tr.eps, "noise": tr.noise})
+        traces[method] = {"folder": f"reference/trace_{method}", "layout": trace_layout, "steps": TRACE_STEPS,
+                          "eta": 0.0, "conditioning": f"reference/denoiser_{trace_layout} (all inputs but x_t and timestep)"}
+
+    metrics = measure(cfg, ae, model, data, latent_dir, layout_names, sched)
+    for f in latent_dir.iterdir():
+        f.unlink()
+    latent_dir.rmdir()
+
+    meta0 = json.loads((wdata.trajectories(data)[0] / "meta.json").read_text())
+    log = [json.loads(l) for l in (run / "log.jsonl").read_text().splitlines()] if (run / "log.jsonl").exists() else []
+    last = lambda stage: next((r for r in reversed(log) if r["stage"] == stage), {})
+    manifest = {
+        "format": MANIFEST_FORMAT,
+        "name": out.name,
+        "created_by": "python -m worldpack_model export",
+        "config": cfg.to_json(),
+        "image": {"width": a.image_size, "height": a.image_size, "channels": 3, "layout": "NCHW, RGB",
+                  "range": [-1.0, 1.0], "from_u8": "x / 127.5 - 1"},
+        "intrinsics": meta0["intrinsics"],
+        "autoencoder": {
+            "encoder": {"file": "encoder.onnx",
+                        "inputs": [tensor_spec("image", ["batch", 3, a.image_size, a.image_size], "float32", "RGB in [-1, 1]")],
+                        "outputs": [tensor_spec("latent", ["batch", a.latent_channels, a.latent_size, a.latent_size], "float32", "raw latent (not scaled)")]},
+            "decoder": {"file": "decoder.onnx",
+                        "inputs": [tensor_spec("latent", ["batch", a.latent_channels, a.latent_size, a.latent_size], "float32", "raw latent (divide the model's latent by latent_scale first)")],
+                        "outputs": [tensor_spec("image", ["batch", 3, a.image_size, a.image_size], "float32", "RGB, nominally [-1, 1]; clamp before converting")]},
+            "latent": {"channels": a.latent_channels, "height": a.latent_size, "width": a.latent_size, "downsample": a.downsample},
+            "latent_scale": float(ae.scale.item()),
+        },
+        "denoiser": {
+            "architecture": "CDiT (NWM): adaLN-Zero blocks of self-attention over target tokens, cross-attention to context tokens, MLP",
+            "patch": cfg.cdit.patch, "hidden": cfg.cdit.hidden, "depth": cfg.cdit.depth, "heads": cfg.cdit.heads,
+            "parameters": sum(p.numel() for p in model.parameters()),
+            "target_tokens": cfg.cdit.grid ** 2,
+            "rates": list(cfg.cdit.rates),
+            "weights": "denoiser.weights",
+            "layouts": layouts_json,
+        },
+        "action": {"dim": cfg.cdit.action_dim, "names": ACTION_NAMES[: cfg.cdit.action_dim],
+                   "scale_inside_graph": ACTION_SCALE[: cfg.cdit.action_dim],
+                   "meaning": "the synthetic world's action (docs/world.md): 0/1 keys, then yaw and pitch change in degrees"},
+        "pose_embedding": {"kind": "relative_pose_3x4", "frame": "opencv (x right, y down, z forward)",
+                           "definition": "inv(T_target) @ T_context with T camera-to-world; rows [R | t] flattened row-major",
+                           "translation_unit": "world units (blocks)",
+                           "translation_scale_inside_graph": 1.0 / cfg.cdit.pose_translation_scale},
+        "time": {"rope": "real cos/sin over the key's time offset, on the two halves of each head; queries at 0",
+                 "rope_base": cfg.cdit.rope_base, "unit": "frames"},
+        "diffusion": {"timesteps": cfg.diffusion.timesteps, "schedule": "linear", "beta_start": cfg.diffusion.beta_start,
+                      "beta_end": cfg.diffusion.beta_end, "prediction": "epsilon",
+                      "ancestral_variance": "posterior beta_tilde = beta_k (1 - abar_{k-1}) / (1 - abar_k), no noise on the last step",
+                      "respacing": "kept = unique(round(linspace(0, T-1, steps))); betas recomputed from the kept abar; the model gets the original index",
+                      "ddim": "x_{k-1} = sqrt(abar_{k-1}) x0 + sqrt(1 - abar_{k-1} - sigma^2) eps + sigma z, sigma = eta sqrt((1-abar_{k-1})/(1-abar_k) (1 - abar_k/abar_{k-1}))",
+                      "precision": "coefficients in float64, state in float32"},
+        "training": {
+            "data": {"source": "worldpack sim dataset (training world seeds)", "frame_size": [a.image_size, a.image_size]},
+            "policy": policy, "steps": ckpt["step"],
+            "autoencoder_steps": last("autoencoder").get("step"),
+            "final_loss": last(f"cdit-{policy}").get("loss"),
+            "samples_per_s": last(f"cdit-{policy}").get("samples_per_s"),
+            "weights": "EMA",
+        },
+        "metrics": metrics,
+        "reference": {
+            "tolerance": {"abs": 1e-5, "rel": 1e-4},
+            "graphs": {"encoder": "reference/encoder", "decoder": "reference/decoder",
+                       **{f"denoiser_{n}": f"reference/denoiser_{n}" for n in layout_names}},
+            "traces": traces,
+        },
+    }
+    (out / "manifest.json").write_text(json.dumps(manifest, indent=2))
+    print(f"exported {out} in {time.time() - started:.1f} s: " + json.dumps(metrics))
+
+
+@torch.no_grad()
+def measure(cfg: ModelConfig, ae, model: CDiT, data: Path, latent_dir: Path, layout_names: list[str], sched: Schedule) -> dict:
+    """Held-out figures for the manifest: autoencoder PSNR, denoising loss, and
+    next-frame PSNR with a short sampler against copying the last frame."""
+    out = {"suite": str(data), "autoencoder_psnr_db": round(evaluate_autoencoder(ae, data, torch.device("cpu")), 2)}
+    rng = np.random.default_rng(3)
+    for name in layout_names:
+        layout = LAYOUTS[name]
+        source = wdata.PlannedLatents(data, latent_dir, name, layout)
+        batch = source.batch(rng, 64)
+        groups = [tuple(torch.from_numpy(x) for x in g) for g in batch.groups]
+        x0 = torch.from_numpy(batch.target)
+        act, rel = torch.from_numpy(batch.action), torch.from_numpy(batch.rel_time)
+        t = torch.from_numpy(rng.integers(0, cfg.diffusion.timesteps, 64)).float()
+        ab = torch.tensor(sched.alphas_cumprod, dtype=torch.float32)[t.long()].view(-1, 1, 1, 1)
+        noise = torch.randn(x0.shape, generator=torch.Generator().manual_seed(0))
+        eps = model(ab.sqrt() * x0 + (1 - ab).sqrt() * noise, t, act, rel, groups, rates=layout.rates)
+        entry = {"eps_mse": round(float(((eps - noise) ** 2).mean()), 4)}
+        n = 16
+        sub = [tuple(x[:n] for x in g) for g in groups]
+        fn = lambda x, tt: model(torch.from_numpy(x), torch.from_numpy(tt), act[:n], rel[:n], sub, rates=layout.rates).numpy()
+        tr = sample(fn, sched, rng.standard_normal(x0[:n].shape).astype(np.float32), 20, "ancestral", rng=rng)
+        pred = ae.decoder(torch.from_numpy(tr.x[-1]) / ae.scale)
+        truth = ae.decoder(x0[:n] / ae.scale)
+        # The most recent present context frame, decoded: what "copy the last frame" would predict.
+        last = []
+        for i in range(n):
+            best, best_t = None, -1e9
+            for g in batch.groups:
+                for s in range(g[0].shape[1]):
+                    if g[3][i, s] > 0 and g[1][i, s] > best_t:
+                        best, best_t = g[0][i, s], g[1][i, s]
+            last.append(best)
+        copy = ae.decoder(torch.from_numpy(np.stack(last)) / ae.scale)
+        entry["next_frame_psnr_db_20_steps"] = round(psnr(pred, truth), 2)
+        entry["copy_last_frame_psnr_db"] = round(psnr(copy, truth), 2)
+        out[name] = entry
+    return out

@@ -1,0 +1,204 @@
+"""Training: the autoencoder, latent caching, and the CDiT (DDPM, eps-prediction).
+Every stage checkpoints to its run folder and resumes from it."""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from tqdm import tqdm
+
+from . import data as wdata
+from .autoencoder import Autoencoder, psnr
+from .cdit import CDiT
+from .config import LAYOUTS, ModelConfig
+from .diffusion import Schedule
+
+
+def pick_device(name: str) -> torch.device:
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    if name == "cuda" and not torch.cuda.is_available():
+        raise SystemExit("--device cuda: this torch sees no CUDA device (use --device cpu or auto)")
+    return torch.device(name)
+
+
+def run_config(run: Path) -> ModelConfig:
+    path = run / "config.json"
+    if path.exists():
+        return ModelConfig.from_json(json.loads(path.read_text()))
+    cfg = ModelConfig()
+    run.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(cfg.to_json(), indent=2))
+    return cfg
+
+
+def log(run: Path, record: dict) -> None:
+    with open(run / "log.jsonl", "a") as f:
+        f.write(json.dumps(record) + "\n")
+
+
+def save(path: Path, **state) -> None:
+    tmp = path.with_suffix(".tmp")
+    torch.save(state, tmp)
+    tmp.replace(path)  # a crash mid-save never leaves a torn checkpoint
+
+
+def train_autoencoder(data: Path, run: Path, steps: int, batch: int, lr: float, device: str, minutes: float | None) -> None:
+    cfg = run_config(run)
+    dev = pick_device(device)
+    frames = wdata.Frames(data)
+    ae = Autoencoder(cfg.autoencoder).to(dev)
+    opt = torch.optim.AdamW(ae.parameters(), lr=lr, weight_decay=0.0)
+    ckpt = run / "autoencoder.pt"
+    step = 0
+    if ckpt.exists():
+        state = torch.load(ckpt, map_location=dev)
+        ae.load_state_dict(state["model"])
+        opt.load_state_dict(state["opt"])
+        step = state["step"]
+        print(f"resuming the autoencoder at step {step}")
+    rng = np.random.default_rng(step)
+    deadline = time.time() + minutes * 60 if minutes else math.inf
+    bar = tqdm(total=steps, initial=step, desc="autoencoder", unit="step")
+    while step < steps and time.time() < deadline:
+        x = torch.from_numpy(frames.batch(rng, batch)).to(dev)
+        z = ae.encoder(x)
+        # Noise on the latent teaches the decoder to tolerate a sampler's small errors.
+        z_noisy = z + 0.05 * z.detach().std() * torch.randn_like(z)
+        y = ae.decoder(z_noisy)
+        loss = F.l1_loss(y, x) + F.mse_loss(y, x) + 1e-4 * z.pow(2).mean()
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(ae.parameters(), 10.0)
+        opt.step()
+        step += 1
+        bar.update(1)
+        if step % 50 == 0:
+            p = psnr(y.detach(), x)
+            bar.set_postfix(loss=f"{loss.item():.4f}", psnr=f"{p:.2f}")
+            log(run, {"stage": "autoencoder", "step": step, "loss": loss.item(), "psnr": p})
+        if step % 500 == 0:
+            save(ckpt, model=ae.state_dict(), opt=opt.state_dict(), step=step)
+    bar.close()
+    # The latent scale, as SD's 0.18215: one over the latents' standard deviation.
+    with torch.no_grad():
+        zs = torch.cat([ae.encoder(torch.from_numpy(frames.batch(np.random.default_rng(1), 64)).to(dev)) for _ in range(8)])
+        ae.scale.fill_(1.0 / zs.std().item())
+    save(ckpt, model=ae.state_dict(), opt=opt.state_dict(), step=step)
+    print(f"autoencoder at step {step}; latent scale {ae.scale.item():.5f}")
+
+
+@torch.no_grad()
+def evaluate_autoencoder(ae: Autoencoder, data: Path, dev: torch.device, frames: int = 512) -> float:
+    rng = np.random.default_rng(12345)
+    x = torch.from_numpy(wdata.Frames(data).batch(rng, frames)).to(dev)
+    y = torch.cat([ae.decoder(ae.encoder(c)) for c in x.split(64)])
+    return psnr(y, x)
+
+
+def load_autoencoder(run: Path, dev: torch.device) -> Autoencoder:
+    cfg = run_config(run)
+    ckpt = run / "autoencoder.pt"
+    if not ckpt.exists():
+        raise SystemExit(f"--run: no autoencoder.pt in {run}; run `train-ae` first")
+    ae = Autoencoder(cfg.autoencoder).to(dev)
+    ae.load_state_dict(torch.load(ckpt, map_location=dev)["model"])
+    return ae.eval()
+
+
+@torch.no_grad()
+def encode(data: Path, run: Path, device: str) -> None:
+    """Caches every frame's scaled latent (float16) under run/latents/."""
+    dev = pick_device(device)
+    ae = load_autoencoder(run, dev)
+    out = run / "latents"
+    out.mkdir(exist_ok=True)
+    dirs = wdata.trajectories(data)
+    for d in tqdm(dirs, desc="encode", unit="traj"):
+        target = out / f"{d.name}.npy"
+        if target.exists():
+            continue
+        rgb = np.load(d / "rgb.npy")
+        z = torch.cat([ae.encoder(torch.from_numpy(wdata.to_unit_range(c)).to(dev)) for c in np.array_split(rgb, max(1, len(rgb) // 256))])
+        np.save(target.with_suffix(".tmp.npy"), (z * ae.scale).cpu().numpy().astype(np.float16))
+        target.with_suffix(".tmp.npy").replace(target)
+    print(f"latents for {len(dirs)} trajectories in {out}")
+
+
+def to_device(batch: wdata.Batch, dev: torch.device):
+    t = lambda a: torch.from_numpy(a).to(dev)
+    groups = [tuple(t(a) for a in g) for g in batch.groups]
+    return t(batch.target), t(batch.action), t(batch.rel_time), groups
+
+
+def train_cdit(data: Path, run: Path, policy: str, steps: int, batch: int, lr: float, ema_decay: float,
+               device: str, minutes: float | None, init_from: Path | None) -> None:
+    cfg = run_config(run)
+    dev = pick_device(device)
+    layout = LAYOUTS[policy]
+    missing = set(layout.rates) - set(cfg.cdit.rates)
+    if missing:
+        raise SystemExit(f"--policy {policy}: the model has no projection for rates {sorted(missing)}")
+    source = wdata.PlannedLatents(data, run / "latents", policy, layout)
+    model = CDiT(cfg.cdit).to(dev)
+    ema = CDiT(cfg.cdit).to(dev)
+    opt = torch.optim.AdamW(model.parameters(), lr=lr, weight_decay=0.0)
+    sched = Schedule(cfg.diffusion)
+    alpha_bar = torch.tensor(sched.alphas_cumprod, dtype=torch.float32, device=dev)
+    ckpt = run / f"cdit-{policy}.pt"
+    step = 0
+    if ckpt.exists():
+        state = torch.load(ckpt, map_location=dev)
+        model.load_state_dict(state["model"])
+        ema.load_state_dict(state["ema"])
+        opt.load_state_dict(state["opt"])
+        step = state["step"]
+        print(f"resuming {ckpt.name} at step {step}")
+    else:
+        if init_from is not None:
+            # Fine-tuning (paper: packing variants start from the trained baseline):
+            # copy what matches, then derive the rate kernels from the base patchify.
+            base = torch.load(init_from, map_location=dev)["ema"]
+            model.load_state_dict(base, strict=False)
+            model.init_rate_projections_from_base()
+            print(f"initialised from {init_from}")
+        ema.load_state_dict(model.state_dict())
+    ema.requires_grad_(False)
+    rng = np.random.default_rng(1000 + step)
+    torch.manual_seed(1000 + step)
+    deadline = time.time() + minutes * 60 if minutes else math.inf
+    bar = tqdm(total=steps, initial=step, desc=f"cdit {policy}", unit="step")
+    started, seen = time.time(), 0
+    while step < steps and time.time() < deadline:
+        x0, action, rel_time, groups = to_device(source.batch(rng, batch), dev)
+        t = torch.randint(0, cfg.diffusion.timesteps, (batch,), device=dev)
+        noise = torch.randn_like(x0)
+        ab = alpha_bar[t].view(-1, 1, 1, 1)
+        xt = ab.sqrt() * x0 + (1 - ab).sqrt() * noise
+        eps = model(xt, t.float(), action, rel_time, groups)
+        loss = F.mse_loss(eps, noise)
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(model.parameters(), 10.0)
+        opt.step()
+        with torch.no_grad():
+            for pe, pm in zip(ema.parameters(), model.parameters()):
+                pe.lerp_(pm, 1 - ema_decay)
+        step += 1
+        seen += batch
+        bar.update(1)
+        if step % 50 == 0:
+            bar.set_postfix(loss=f"{loss.item():.4f}")
+            log(run, {"stage": f"cdit-{policy}", "step": step, "loss": loss.item(),
+                      "samples_per_s": seen / (time.time() - started)})
+        if step % 500 == 0:
+            save(ckpt, model=model.state_dict(), ema=ema.state_dict(), opt=opt.state_dict(), step=step, policy=policy)
+    bar.close()
+    save(ckpt, model=model.state_dict(), ema=ema.state_dict(), opt=opt.state_dict(), step=step, policy=policy)
+    print(f"cdit {policy} at step {step} ({seen / max(time.time() - started, 1e-9):.1f} samples/s this run)")
