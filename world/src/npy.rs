@@ -32,6 +32,7 @@ element!(u16, "<u2");
 element!(i32, "<i4");
 element!(f32, "<f4");
 element!(f64, "<f8");
+element!(i64, "<i8");
 
 /// The whole file: header padded to 64 bytes, then the data.
 pub fn encode<T: Element>(shape: &[usize], data: &[T]) -> Vec<u8> {

@@ -186,7 +186,8 @@ def export(run: Path, policy: str, layout_names: list[str], data: Path, out: Pat
         if missing:
             raise SystemExit(f"--layouts {name}: the model has no projection for rates {sorted(missing)}")
         source = wdata.PlannedLatents(data, latent_dir, name, layout)
-        batch = source.gather(reference_rows(source, REFERENCE_BATCH))
+        rows = reference_rows(source, REFERENCE_BATCH)
+        batch = source.gather(rows)
         noise = rng.standard_normal(batch.target.shape).astype(np.float32)
         t = np.array([250.0, 750.0][:REFERENCE_BATCH], np.float32)
         ab = Schedule(cfg.diffusion).alphas_cumprod[t.astype(int)].astype(np.float32)[:, None, None, None]
@@ -202,6 +203,15 @@ def export(run: Path, policy: str, layout_names: list[str], data: Path, out: Pat
             eps = graph(*args)
         denoisers[name] = to_onnx(graph, args, names, ["eps"])
         save_arrays(ref / f"denoiser_{name}", {**arrays, "eps": eps.numpy()})
+        # What produced the context inputs, so a runtime can check its own packing.
+        plan_rows = []
+        for i, t in rows:
+            ids = [int(x) for x in source.plans[i][t]]
+            plan_rows.append({"target_time": t, "target_c2w": source.poses[i][t].tolist(),
+                              "slots": [{"rate": r, "frame": f if f >= 0 else None,
+                                         "c2w": source.poses[i][f].tolist() if f >= 0 else None}
+                                        for r, f in zip([r for r, n in zip(layout.rates, layout.counts) for _ in range(n)], ids)]})
+        (ref / f"denoiser_{name}" / "plan.json").write_text(json.dumps({"rows": plan_rows}, indent=1))
         ins, outs = denoiser_io(cfg, layout)
         layouts_json.append({
             "name": name,

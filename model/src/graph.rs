@@ -1,0 +1,134 @@
+//! One ONNX graph: its sessions (a pool, so concurrent callers do not queue
+//! on one `Session::run(&mut self)`) and the check of its inputs and outputs
+//! against the manifest.
+
+use std::path::{Path, PathBuf};
+use std::sync::Mutex;
+
+use ort::session::Session;
+use ort::value::{TensorRef, ValueType};
+
+use crate::error::ModelError;
+use crate::manifest::GraphSpec;
+use crate::runtime::{RuntimeOptions, build_session};
+
+/// A float32 tensor: shape and row-major data.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Tensor {
+    pub shape: Vec<usize>,
+    pub data: Vec<f32>,
+}
+
+impl Tensor {
+    pub fn new(shape: Vec<usize>, data: Vec<f32>) -> Tensor {
+        debug_assert_eq!(shape.iter().product::<usize>(), data.len());
+        Tensor { shape, data }
+    }
+}
+
+pub struct Graph {
+    path: PathBuf,
+    spec: GraphSpec,
+    options: RuntimeOptions,
+    provider: &'static str,
+    idle: Mutex<Vec<Session>>,
+}
+
+impl Graph {
+    /// Opens `dir/spec.file` and checks it against the manifest's spec.
+    pub fn open(dir: &Path, spec: &GraphSpec, options: RuntimeOptions) -> Result<Graph, ModelError> {
+        let path = dir.join(&spec.file);
+        if !path.is_file() {
+            return Err(ModelError::Folder { path: dir.to_path_buf(), message: format!("{} is listed in manifest.json but missing", spec.file) });
+        }
+        let (session, provider) = build_session(&path, options)?;
+        check_io(&spec.file, spec, &session)?;
+        Ok(Graph { path, spec: spec.clone(), options, provider, idle: Mutex::new(vec![session]) })
+    }
+
+    /// The execution provider running this graph (`cpu` or `cuda`).
+    pub fn provider(&self) -> &'static str {
+        self.provider
+    }
+
+    pub fn spec(&self) -> &GraphSpec {
+        &self.spec
+    }
+
+    /// Runs the graph on named inputs (every input of the spec, any order);
+    /// returns the outputs in the spec's order.
+    pub fn run(&self, inputs: &[(&str, &Tensor)]) -> Result<Vec<Tensor>, ModelError> {
+        let mut feed = Vec::with_capacity(inputs.len());
+        for spec in &self.spec.inputs {
+            let Some((_, t)) = inputs.iter().find(|(n, _)| *n == spec.name) else {
+                return Err(ModelError::input(&spec.name, format!("{}: input missing", self.spec.file)));
+            };
+            let want = spec.dims();
+            let fits = want.len() == t.shape.len() && want.iter().zip(&t.shape).all(|(&w, &g)| w < 0 || w as usize == g);
+            if !fits || t.data.len() != t.shape.iter().product::<usize>() {
+                return Err(ModelError::input(&spec.name, format!("expected shape {:?}, got {:?}", spec.shape, t.shape)));
+            }
+            let value = TensorRef::from_array_view((t.shape.clone(), &t.data[..]))?;
+            feed.push((spec.name.clone(), value));
+        }
+        let mut session = self.checkout()?;
+        let result = (|| {
+            let outputs = session.run(feed)?;
+            self.spec
+                .outputs
+                .iter()
+                .map(|o| {
+                    let (shape, data) = outputs[o.name.as_str()].try_extract_tensor::<f32>()?;
+                    Ok(Tensor::new(shape.iter().map(|&d| d as usize).collect(), data.to_vec()))
+                })
+                .collect::<Result<Vec<_>, ModelError>>()
+        })();
+        self.idle.lock().unwrap_or_else(|p| p.into_inner()).push(session);
+        result
+    }
+
+    /// An idle session, or a new one when every session is busy.
+    fn checkout(&self) -> Result<Session, ModelError> {
+        if let Some(s) = self.idle.lock().unwrap_or_else(|p| p.into_inner()).pop() {
+            return Ok(s);
+        }
+        Ok(build_session(&self.path, self.options)?.0)
+    }
+}
+
+fn check_io(file: &str, spec: &GraphSpec, session: &Session) -> Result<(), ModelError> {
+    for (kind, declared, actual) in [("input", &spec.inputs, session.inputs()), ("output", &spec.outputs, session.outputs())] {
+        let names: Vec<&str> = actual.iter().map(|o| o.name()).collect();
+        for d in declared.iter() {
+            let Some(a) = actual.iter().find(|a| a.name() == d.name) else {
+                return Err(ModelError::Mismatch {
+                    file: file.into(),
+                    tensor: d.name.clone(),
+                    expected: format!("an {kind} called {:?}", d.name),
+                    actual: format!("{kind}s {names:?}"),
+                });
+            };
+            let (ty, shape) = match a.dtype() {
+                ValueType::Tensor { ty, shape, .. } => (format!("{ty:?}"), shape.iter().copied().collect::<Vec<i64>>()),
+                other => (format!("{other:?}"), vec![]),
+            };
+            if shape != d.dims() || !ty.eq_ignore_ascii_case("float32") {
+                return Err(ModelError::Mismatch {
+                    file: file.into(),
+                    tensor: d.name.clone(),
+                    expected: format!("float32 {:?}", d.shape),
+                    actual: format!("{ty} {shape:?} (-1 = dynamic)"),
+                });
+            }
+        }
+        if declared.len() != actual.len() {
+            return Err(ModelError::Mismatch {
+                file: file.into(),
+                tensor: format!("({kind}s)"),
+                expected: format!("{} {kind}s", declared.len()),
+                actual: format!("{} {kind}s {names:?}", actual.len()),
+            });
+        }
+    }
+    Ok(())
+}

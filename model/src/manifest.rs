@@ -1,0 +1,219 @@
+//! `manifest.json`: the contract between an export and this runtime
+//! (docs/model.md lists every field). Parsed, then checked for consistency
+//! before any graph is opened.
+
+use std::path::Path;
+
+use memory::Intrinsics;
+use serde::Deserialize;
+
+use crate::error::ModelError;
+
+pub const FORMAT: &str = "worldpack-model/1";
+
+#[derive(Clone, Debug, Deserialize)]
+pub struct Manifest {
+    pub format: String,
+    pub name: String,
+    pub image: ImageSpec,
+    pub intrinsics: Intrinsics,
+    pub autoencoder: AutoencoderSpec,
+    pub denoiser: DenoiserSpec,
+    pub action: ActionSpec,
+    pub diffusion: DiffusionSpec,
+}
+
+#[derive(Clone, Debug, Deserialize)]
+pub struct ImageSpec {
+    pub width: usize,
+    pub height: usize,
+    pub channels: usize,
+}
+
+/// One dimension: a fixed size, or a named dynamic axis such as `"batch"`.
+#[derive(Clone, Debug, PartialEq, Deserialize)]
+#[serde(untagged)]
+pub enum Dim {
+    Fixed(i64),
+    Named(String),
+}
+
+#[derive(Clone, Debug, Deserialize)]
+pub struct TensorSpec {
+    pub name: String,
+    pub shape: Vec<Dim>,
+    pub dtype: String,
+}
+
+impl TensorSpec {
+    /// The shape with the dynamic axes as -1, as ONNX Runtime reports it.
+    pub fn dims(&self) -> Vec<i64> {
+        self.shape.iter().map(|d| if let Dim::Fixed(n) = d { *n } else { -1 }).collect()
+    }
+}
+
+#[derive(Clone, Debug, Deserialize)]
+pub struct GraphSpec {
+    pub file: String,
+    pub inputs: Vec<TensorSpec>,
+    pub outputs: Vec<TensorSpec>,
+}
+
+#[derive(Clone, Debug, Deserialize)]
+pub struct LatentSpec {
+    pub channels: usize,
+    pub height: usize,
+    pub width: usize,
+}
+
+impl LatentSpec {
+    pub fn len(&self) -> usize {
+        self.channels * self.height * self.width
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+}
+
+#[derive(Clone, Debug, Deserialize)]
+pub struct AutoencoderSpec {
+    pub encoder: GraphSpec,
+    pub decoder: GraphSpec,
+    pub latent: LatentSpec,
+    pub latent_scale: f64,
+}
+
+#[derive(Clone, Debug, Deserialize)]
+pub struct SlotSpec {
+    pub rate: u32,
+    pub count: usize,
+    pub tokens_per_frame: u64,
+}
+
+#[derive(Clone, Debug, Deserialize)]
+pub struct LayoutSpec {
+    pub name: String,
+    pub file: String,
+    pub slots: Vec<SlotSpec>,
+    pub frames: usize,
+    pub context_tokens: u64,
+    pub inputs: Vec<TensorSpec>,
+    pub outputs: Vec<TensorSpec>,
+}
+
+impl LayoutSpec {
+    pub fn graph(&self) -> GraphSpec {
+        GraphSpec { file: self.file.clone(), inputs: self.inputs.clone(), outputs: self.outputs.clone() }
+    }
+}
+
+#[derive(Clone, Debug, Deserialize)]
+pub struct DenoiserSpec {
+    pub patch: u32,
+    pub rates: Vec<u32>,
+    pub layouts: Vec<LayoutSpec>,
+}
+
+#[derive(Clone, Debug, Deserialize)]
+pub struct ActionSpec {
+    pub dim: usize,
+}
+
+#[derive(Clone, Debug, Deserialize)]
+pub struct DiffusionSpec {
+    pub timesteps: usize,
+    pub beta_start: f64,
+    pub beta_end: f64,
+    pub prediction: String,
+}
+
+impl Manifest {
+    /// Reads and checks `dir/manifest.json`.
+    pub fn load(dir: &Path) -> Result<Manifest, ModelError> {
+        let path = dir.join("manifest.json");
+        let folder_error = |message: String| ModelError::Folder { path: dir.to_path_buf(), message };
+        if !dir.is_dir() {
+            return Err(folder_error("no such model folder (expected ONNX graphs and manifest.json, e.g. fixtures/small)".into()));
+        }
+        let text = std::fs::read_to_string(&path)
+            .map_err(|e| folder_error(format!("cannot read manifest.json ({e}); is this a folder written by `python -m worldpack_model export`?")))?;
+        let manifest: Manifest = serde_json::from_str(&text).map_err(|e| ModelError::manifest("manifest.json", e.to_string()))?;
+        manifest.validate()?;
+        Ok(manifest)
+    }
+
+    /// Consistency between fields: shapes, rates and token counts.
+    pub fn validate(&self) -> Result<(), ModelError> {
+        let bad = |field: &str, message: String| Err(ModelError::manifest(field, message));
+        if self.format != FORMAT {
+            return bad("format", format!("expected {FORMAT:?}, got {:?}", self.format));
+        }
+        let a = &self.autoencoder;
+        if !(a.latent_scale.is_finite() && a.latent_scale > 0.0) {
+            return bad("autoencoder.latent_scale", format!("must be a positive number, got {}", a.latent_scale));
+        }
+        let latent = [a.latent.channels, a.latent.height, a.latent.width].map(|n| Dim::Fixed(n as i64));
+        let image = [self.image.channels, self.image.height, self.image.width].map(|n| Dim::Fixed(n as i64));
+        for (field, spec, want) in [
+            ("autoencoder.encoder.inputs[0]", a.encoder.inputs.first(), &image),
+            ("autoencoder.encoder.outputs[0]", a.encoder.outputs.first(), &latent),
+            ("autoencoder.decoder.inputs[0]", a.decoder.inputs.first(), &latent),
+            ("autoencoder.decoder.outputs[0]", a.decoder.outputs.first(), &image),
+        ] {
+            match spec {
+                Some(s) if s.shape.len() == 4 && s.shape[1..] == want[..] => {}
+                Some(s) => return bad(&format!("{field}.shape"), format!("expected [batch, {:?}], got {:?}", want, s.shape)),
+                None => return bad(field, "missing".into()),
+            }
+        }
+        let d = &self.denoiser;
+        if d.layouts.is_empty() {
+            return bad("denoiser.layouts", "at least one layout is needed".into());
+        }
+        for (i, layout) in d.layouts.iter().enumerate() {
+            let at = format!("denoiser.layouts[{i}]");
+            let mut total = 0;
+            for (j, slot) in layout.slots.iter().enumerate() {
+                if !d.rates.contains(&slot.rate) {
+                    return bad(&format!("{at}.slots[{j}].rate"), format!("{} is not one of denoiser.rates {:?}", slot.rate, d.rates));
+                }
+                let Some(side) = memory::policy::side_factor(slot.rate) else {
+                    return bad(&format!("{at}.slots[{j}].rate"), format!("{} is not a square (1, 4, 16, ...)", slot.rate));
+                };
+                let k = (d.patch * side) as usize;
+                let want = (a.latent.height.div_ceil(k) * a.latent.width.div_ceil(k)) as u64;
+                if slot.tokens_per_frame != want {
+                    return bad(&format!("{at}.slots[{j}].tokens_per_frame"), format!("expected {want}, got {}", slot.tokens_per_frame));
+                }
+                if slot.count == 0 {
+                    return bad(&format!("{at}.slots[{j}].count"), "must be at least 1".into());
+                }
+                total += slot.count as u64 * want;
+            }
+            if layout.context_tokens != total {
+                return bad(&format!("{at}.context_tokens"), format!("expected {total}, got {}", layout.context_tokens));
+            }
+            if layout.frames != layout.slots.iter().map(|s| s.count).sum::<usize>() {
+                return bad(&format!("{at}.frames"), "must equal the sum of the slot counts".into());
+            }
+        }
+        let f = &self.diffusion;
+        if f.timesteps == 0 {
+            return bad("diffusion.timesteps", "must be at least 1".into());
+        }
+        if !(0.0 < f.beta_start && f.beta_start < f.beta_end && f.beta_end < 1.0) {
+            return bad("diffusion.beta_start", format!("need 0 < beta_start < beta_end < 1, got {} and {}", f.beta_start, f.beta_end));
+        }
+        if f.prediction != "epsilon" {
+            return bad("diffusion.prediction", format!("only \"epsilon\" is supported, got {:?}", f.prediction));
+        }
+        Ok(())
+    }
+
+    /// The denoiser layout called `name` (`worldpack`, `baseline`, ...).
+    pub fn layout(&self, name: &str) -> Option<&LayoutSpec> {
+        self.denoiser.layouts.iter().find(|l| l.name == name)
+    }
+}
+

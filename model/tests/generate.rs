@@ -1,0 +1,64 @@
+//! Generation around the graphs: seeded noise, the sampling loop, and RGB
+//! frames in and out with the intrinsics rescaled.
+
+use std::path::Path;
+
+use memory::Intrinsics;
+use model::generate::{Conditioning, frame_to_tensor, gaussian, tensor_to_frame};
+use model::{Method, Model, Provider, RuntimeOptions, Sampler, Tensor};
+
+fn reference(name: &str) -> Tensor {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../fixtures/small/reference/denoiser_worldpack").join(format!("{name}.npy"));
+    let (shape, data) = world::npy::read::<f32>(&path).unwrap();
+    Tensor::new(shape, data)
+}
+
+#[test]
+fn gaussian_noise_is_seeded_and_standard() {
+    let a = gaussian(7, 100_001);
+    assert_eq!(a, gaussian(7, 100_001));
+    assert_ne!(a[..10], gaussian(8, 10)[..]);
+    let mean = a.iter().map(|&v| v as f64).sum::<f64>() / a.len() as f64;
+    let var = a.iter().map(|&v| (v as f64 - mean).powi(2)).sum::<f64>() / a.len() as f64;
+    assert!(mean.abs() < 0.01 && (var - 1.0).abs() < 0.02, "mean {mean}, variance {var}");
+}
+
+#[test]
+fn sampling_is_seeded_and_finite() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../fixtures/small");
+    let m = Model::load(&dir, RuntimeOptions { provider: Provider::Cpu, threads: 1 }).unwrap();
+    let layout = m.manifest().layout("worldpack").unwrap();
+    let context: Vec<(String, Tensor)> = layout.inputs.iter().filter(|s| s.name.starts_with("context")).map(|s| (s.name.clone(), reference(&s.name))).collect();
+    let (action, rel_time) = (reference("action"), reference("rel_time"));
+    let cond = Conditioning { context: &context, action: &action, rel_time: &rel_time };
+    let sampler = Sampler::new(&m.manifest().diffusion, 3, Method::Ancestral, 0.0).unwrap();
+    let a = m.sample("worldpack", &cond, &sampler, 1).unwrap();
+    assert_eq!(a.shape, [2, 4, 16, 16]);
+    assert!(a.data.iter().all(|v| v.is_finite()));
+    assert_eq!(a, m.sample("worldpack", &cond, &sampler, 1).unwrap());
+    assert_ne!(a, m.sample("worldpack", &cond, &sampler, 2).unwrap());
+    let image = m.decode(&a).unwrap();
+    assert_eq!(tensor_to_frame(&image, 1).unwrap().len(), 64 * 64 * 3);
+    let err = m.sample("nope", &cond, &sampler, 1).unwrap_err().to_string();
+    assert!(err.starts_with("layout:"), "{err}");
+}
+
+#[test]
+fn frames_round_trip_and_resize_with_their_intrinsics() {
+    let (w, h) = (8u32, 6u32);
+    let rgb: Vec<u8> = (0..w * h * 3).map(|i| (i * 37 % 256) as u8).collect();
+    let k = Intrinsics::from_fov(70.0, None, w, h).unwrap();
+    let (t, k_same) = frame_to_tensor(&rgb, w, h, &k, w, h).unwrap();
+    assert_eq!(t.shape, [1, 3, 6, 8]);
+    assert_eq!(tensor_to_frame(&t, 0).unwrap(), rgb, "same size is lossless");
+    assert_eq!(k_same, k);
+    // Halving averages 2x2 blocks exactly (bilinear at the block centre).
+    let (t, k2) = frame_to_tensor(&rgb, w, h, &k, 4, 3).unwrap();
+    let px = |x: usize, y: usize, c: usize| rgb[(y * 8 + x) * 3 + c] as f32;
+    let want = (px(2, 2, 1) + px(3, 2, 1) + px(2, 3, 1) + px(3, 3, 1)) / 4.0 / 127.5 - 1.0;
+    assert!((t.data[(3 + 1) * 4 + 1] - want).abs() < 1e-6);
+    assert_eq!((k2.width, k2.height), (4, 3));
+    assert!((k2.fx - k.fx / 2.0).abs() < 1e-12 && (k2.cx - ((k.cx + 0.5) / 2.0 - 0.5)).abs() < 1e-12);
+    let err = frame_to_tensor(&rgb[1..], w, h, &k, 4, 3).unwrap_err().to_string();
+    assert!(err.starts_with("image:"), "{err}");
+}

@@ -1,0 +1,289 @@
+//! The committed model through ONNX Runtime from Rust, against the PyTorch
+//! references written at export: every graph, the packing of memory plans
+//! into the denoiser's inputs, and the samplers step by step.
+
+use std::path::{Path, PathBuf};
+
+use memory::policy::{SelectedFrame, Slot};
+use memory::{ContextPlan, Pose};
+use model::pack::{ContextFrame, pack, stack};
+use model::{Method, Model, ModelError, Provider, RuntimeOptions, Sampler, Tensor};
+use serde_json::Value;
+
+fn fixture() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../fixtures/small")
+}
+
+fn model() -> Model {
+    Model::load(&fixture(), RuntimeOptions { provider: Provider::Cpu, threads: 1 }).expect("the committed model loads")
+}
+
+fn reference(folder: &str, name: &str) -> Tensor {
+    let path = fixture().join(folder).join(format!("{name}.npy"));
+    let (shape, data) = world::npy::read::<f32>(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    Tensor::new(shape, data)
+}
+
+fn manifest_json() -> Value {
+    serde_json::from_str(&std::fs::read_to_string(fixture().join("manifest.json")).unwrap()).unwrap()
+}
+
+/// |a - b| <= 1e-5 + 1e-4 |b| everywhere (the manifest's tolerance).
+fn assert_close(actual: &Tensor, expected: &Tensor, what: &str) {
+    assert_eq!(actual.shape, expected.shape, "{what}: shape");
+    let worst = actual
+        .data
+        .iter()
+        .zip(&expected.data)
+        .map(|(a, b)| (a - b).abs() - (1e-5 + 1e-4 * b.abs()))
+        .fold(f32::NEG_INFINITY, f32::max);
+    assert!(worst <= 0.0, "{what}: exceeds the tolerance by {worst:e}");
+}
+
+fn inputs_of<'a>(graph: &model::Graph, folder: &str, store: &'a mut Vec<(String, Tensor)>) -> Vec<(&'a str, &'a Tensor)> {
+    *store = graph.spec().inputs.iter().map(|s| (s.name.clone(), reference(folder, &s.name))).collect();
+    store.iter().map(|(n, t)| (n.as_str(), t)).collect()
+}
+
+#[test]
+fn every_graph_matches_pytorch() {
+    let m = model();
+    assert_eq!(m.provider(), "cpu");
+    let mut graphs: Vec<(String, &model::Graph)> = vec![("encoder".into(), m.encoder()), ("decoder".into(), m.decoder())];
+    for layout in &m.manifest().denoiser.layouts {
+        graphs.push((format!("denoiser_{}", layout.name), m.denoiser(&layout.name).unwrap()));
+    }
+    assert_eq!(graphs.len(), 4, "encoder, decoder, worldpack and baseline denoisers");
+    for (name, graph) in graphs {
+        let folder = format!("reference/{name}");
+        let mut store = Vec::new();
+        let inputs = inputs_of(graph, &folder, &mut store);
+        let outputs = graph.run(&inputs).unwrap();
+        for (spec, got) in graph.spec().outputs.iter().zip(&outputs) {
+            assert_close(got, &reference(&folder, &spec.name), &format!("{name}.{}", spec.name));
+        }
+    }
+}
+
+#[test]
+fn encode_and_decode_apply_the_latent_scale() {
+    let m = model();
+    let scale = m.manifest().autoencoder.latent_scale as f32;
+    let latent = m.encode(&reference("reference/encoder", "image")).unwrap();
+    let raw = reference("reference/encoder", "latent");
+    let scaled = Tensor::new(raw.shape.clone(), raw.data.iter().map(|v| v * scale).collect());
+    assert_close(&latent, &scaled, "encode");
+    let image = m.decode(&scaled).unwrap();
+    assert_close(&image, &reference("reference/decoder", "image"), "decode");
+}
+
+#[test]
+fn packing_a_plan_reproduces_the_reference_inputs() {
+    let m = model();
+    for layout in &m.manifest().denoiser.layouts {
+        let folder = format!("reference/denoiser_{}", layout.name);
+        let rows: Value = serde_json::from_str(&std::fs::read_to_string(fixture().join(&folder).join("plan.json")).unwrap()).unwrap();
+        let latent = &m.manifest().autoencoder.latent;
+        let n = latent.len();
+        let mut packed = Vec::new();
+        for (b, row) in rows["rows"].as_array().unwrap().iter().enumerate() {
+            let target_time = row["target_time"].as_u64().unwrap();
+            let target = pose(&row["target_c2w"]);
+            // The frames' latents are the reference context tensors themselves.
+            let mut frames: Vec<(u64, Vec<f32>, Pose)> = Vec::new();
+            let mut slots = Vec::new();
+            let mut seen = std::collections::HashMap::new();
+            for s in row["slots"].as_array().unwrap() {
+                let rate = s["rate"].as_u64().unwrap() as u32;
+                let at = seen.entry(rate).or_insert(0usize);
+                let frame = s["frame"].as_u64().map(|id| {
+                    let ctx = reference(&folder, &format!("context_r{rate}"));
+                    let k = ctx.shape[1];
+                    let start = (b * k + *at) * n;
+                    frames.push((id, ctx.data[start..start + n].to_vec(), pose(&s["c2w"])));
+                    SelectedFrame { id, time: id, overlap: 0.0, score: 0.0 }
+                });
+                *at += 1;
+                slots.push(Slot { rate, frame });
+            }
+            let plan = ContextPlan { slots };
+            let p = pack(layout, latent, &plan, target_time, &target, |id| {
+                frames.iter().find(|f| f.0 == id).map(|f| ContextFrame { latent: &f.1, time: f.0, pose: &f.2 })
+            })
+            .unwrap();
+            let want_rel = reference(&folder, "rel_time").data[b];
+            assert_eq!(p.rel_time, want_rel, "rel_time of row {b}");
+            packed.push(p.tensors);
+        }
+        let batch = stack(&packed.iter().map(|t| t.as_slice()).collect::<Vec<_>>());
+        for (name, tensor) in &batch {
+            assert_close(tensor, &reference(&folder, name), &format!("{} packed {name}", layout.name));
+        }
+    }
+}
+
+fn pose(v: &Value) -> Pose {
+    let m: Vec<Vec<f64>> = serde_json::from_value(v.clone()).unwrap();
+    Pose::from_rows([[m[0][0], m[0][1], m[0][2]], [m[1][0], m[1][1], m[1][2]], [m[2][0], m[2][1], m[2][2]]], [m[0][3], m[1][3], m[2][3]])
+        .unwrap()
+}
+
+#[test]
+fn samplers_follow_the_pytorch_traces() {
+    let m = model();
+    let traces = manifest_json()["reference"]["traces"].clone();
+    for (method_name, info) in traces.as_object().unwrap() {
+        let method: Method = method_name.parse().unwrap();
+        let folder = info["folder"].as_str().unwrap();
+        let layout = info["layout"].as_str().unwrap();
+        let steps = info["steps"].as_u64().unwrap() as usize;
+        let sampler = Sampler::new(&m.manifest().diffusion, steps, method, info["eta"].as_f64().unwrap()).unwrap();
+        let want_t: Vec<usize> = world::npy::read::<i64>(&fixture().join(folder).join("timesteps.npy")).unwrap().1.iter().map(|&t| t as usize).collect();
+        assert_eq!(sampler.timesteps, want_t, "{method_name} timesteps");
+        let xs = reference(folder, "x");
+        let eps_ref = reference(folder, "eps");
+        let noise = reference(folder, "noise");
+        let per = xs.data.len() / xs.shape[0];
+        let sample_shape = xs.shape[1..].to_vec();
+        let graph = m.denoiser(layout).unwrap();
+        let cond_folder = format!("reference/denoiser_{layout}");
+        let mut store = Vec::new();
+        let mut inputs = inputs_of(graph, &cond_folder, &mut store);
+        let batch = sample_shape[0];
+        let mut free_run = xs.data[..per].to_vec();
+        for (i, &t) in sampler.timesteps.iter().enumerate() {
+            // Teacher-forced: from PyTorch's state, the step must land on PyTorch's next state.
+            let x = Tensor::new(sample_shape.clone(), xs.data[i * per..(i + 1) * per].to_vec());
+            let ts = Tensor::new(vec![batch], vec![t as f32; batch]);
+            inputs.retain(|(n, _)| *n != "x_t" && *n != "timestep");
+            let mut call = inputs.clone();
+            call.push(("x_t", &x));
+            call.push(("timestep", &ts));
+            let eps = graph.run(&call).unwrap().remove(0);
+            let slice = |t: &Tensor, k: usize| Tensor::new(sample_shape.clone(), t.data[k * per..(k + 1) * per].to_vec());
+            assert_close(&eps, &slice(&eps_ref, i), &format!("{method_name} step {i} eps"));
+            let z = &noise.data[i * per..(i + 1) * per];
+            let next = Tensor::new(sample_shape.clone(), sampler.step(i, &x.data, &eps.data, z));
+            assert_close(&next, &slice(&xs, i + 1), &format!("{method_name} step {i} state"));
+            // Free-running from the same start noise, Rust alone.
+            let fx = Tensor::new(sample_shape.clone(), free_run.clone());
+            let mut call = inputs.clone();
+            call.push(("x_t", &fx));
+            call.push(("timestep", &ts));
+            let feps = graph.run(&call).unwrap().remove(0);
+            free_run = sampler.step(i, &free_run, &feps.data, z);
+        }
+        let last = xs.shape[0] - 1;
+        assert_close(&Tensor::new(sample_shape.clone(), free_run), &Tensor::new(sample_shape.clone(), xs.data[last * per..].to_vec()),
+            &format!("{method_name} free run"));
+    }
+}
+
+#[test]
+fn the_respacing_matches_numpy() {
+    let m = model();
+    let s = Sampler::new(&m.manifest().diffusion, 10, Method::Ancestral, 0.0).unwrap();
+    assert_eq!(s.timesteps, [999, 888, 777, 666, 555, 444, 333, 222, 111, 0]);
+    let s = Sampler::new(&m.manifest().diffusion, 1000, Method::Ddim, 0.0).unwrap();
+    assert_eq!(s.len(), 1000);
+    let err = Sampler::new(&m.manifest().diffusion, 0, Method::Ddim, 0.0).unwrap_err();
+    assert!(err.to_string().starts_with("steps:"), "{err}");
+}
+
+fn copy_fixture(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("worldpack-model-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    for entry in std::fs::read_dir(fixture()).unwrap() {
+        let p = entry.unwrap().path();
+        if p.is_file() {
+            std::fs::copy(&p, dir.join(p.file_name().unwrap())).unwrap();
+        }
+    }
+    dir
+}
+
+fn load_err(dir: &Path) -> ModelError {
+    match Model::load(dir, RuntimeOptions::default()) {
+        Ok(_) => panic!("{} loaded", dir.display()),
+        Err(e) => e,
+    }
+}
+
+#[test]
+fn a_wrong_folder_says_what_it_expected() {
+    let err = load_err(Path::new("/nonexistent/model")).to_string();
+    assert!(err.contains("/nonexistent/model") && err.contains("manifest.json"), "{err}");
+    let err = load_err(&std::env::temp_dir()).to_string();
+    assert!(err.contains("cannot read manifest.json"), "{err}");
+}
+
+#[test]
+fn a_manifest_that_disagrees_with_a_graph_names_the_tensor() {
+    let dir = copy_fixture("mismatch");
+    let mut m = manifest_json();
+    m["denoiser"]["layouts"][0]["inputs"][0]["shape"][2] = serde_json::json!(32);
+    std::fs::write(dir.join("manifest.json"), m.to_string()).unwrap();
+    let err = load_err(&dir);
+    let text = err.to_string();
+    assert!(matches!(err, ModelError::Mismatch { .. }), "{text}");
+    assert!(text.contains("tensor x_t") && text.contains("32") && text.contains("16"), "{text}");
+
+    let mut m = manifest_json();
+    m["denoiser"]["layouts"][0]["slots"][1]["tokens_per_frame"] = serde_json::json!(15);
+    std::fs::write(dir.join("manifest.json"), m.to_string()).unwrap();
+    let text = load_err(&dir).to_string();
+    assert!(text.contains("denoiser.layouts[0].slots[1].tokens_per_frame") && text.contains("expected 16"), "{text}");
+
+    std::fs::write(dir.join("manifest.json"), manifest_json().to_string()).unwrap();
+    std::fs::remove_file(dir.join("decoder.onnx")).unwrap();
+    let text = load_err(&dir).to_string();
+    assert!(text.contains("decoder.onnx is listed in manifest.json but missing"), "{text}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn cuda_is_used_when_present_and_refused_loudly_when_absent() {
+    match Model::load(&fixture(), RuntimeOptions { provider: Provider::Cuda, threads: 1 }) {
+        Ok(m) => assert_eq!(m.provider(), "cuda"),
+        Err(e) => {
+            assert!(matches!(e, ModelError::ProviderUnavailable { .. }), "{e}");
+            assert!(e.to_string().contains("cuda"), "{e}");
+            // auto falls back to the CPU and says so.
+            let m = Model::load(&fixture(), RuntimeOptions { provider: Provider::Auto, threads: 1 }).unwrap();
+            assert_eq!(m.provider(), "cpu");
+        }
+    }
+}
+
+#[test]
+fn a_missing_library_says_how_to_get_it() {
+    let err = model::runtime::locate_library_in(Some("/nonexistent/libonnxruntime.so".into()), &[]).unwrap_err().to_string();
+    assert!(err.contains("ORT_DYLIB_PATH=/nonexistent/libonnxruntime.so") && err.contains("scripts/test.sh"), "{err}");
+    let err = model::runtime::locate_library_in(None, &[std::env::temp_dir()]).unwrap_err().to_string();
+    assert!(err.contains("ORT_DYLIB_PATH") && err.contains("onnxruntime wheel"), "{err}");
+    assert!(model::runtime::locate_library().is_ok(), "the test setup (.venv) provides the library");
+}
+
+#[test]
+fn bad_plans_name_the_slot() {
+    let m = model();
+    let layout = m.manifest().layout("baseline").unwrap();
+    let latent = &m.manifest().autoencoder.latent;
+    let target = Pose::from_position(Default::default());
+    let z = vec![0.0; latent.len()];
+    let frame = |_id: u64| Some(ContextFrame { latent: &z, time: 3, pose: &target });
+    let sel = |id| Some(SelectedFrame { id, time: 3, overlap: 0.0, score: 0.0 });
+    let plan = ContextPlan { slots: vec![Slot { rate: 4, frame: sel(1) }] };
+    let err = pack(layout, latent, &plan, 5, &target, frame).unwrap_err().to_string();
+    assert!(err.starts_with("plan.slots[0].rate") && err.contains("no rate 4"), "{err}");
+    let plan = ContextPlan { slots: vec![Slot { rate: 1, frame: None }] };
+    let err = pack(layout, latent, &plan, 5, &target, frame).unwrap_err().to_string();
+    assert!(err.starts_with("plan:"), "{err}");
+    let plan = ContextPlan { slots: vec![Slot { rate: 1, frame: sel(1) }] };
+    let err = pack(layout, latent, &plan, 3, &target, frame).unwrap_err().to_string();
+    assert!(err.contains("not before the target"), "{err}");
+    let slots = (0..5).map(|_| Slot { rate: 1, frame: sel(1) }).collect();
+    let err = pack(layout, latent, &ContextPlan { slots }, 5, &target, frame).unwrap_err().to_string();
+    assert!(err.starts_with("plan.slots[4]"), "{err}");
+}
