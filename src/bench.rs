@@ -56,7 +56,7 @@ fn frustum(k: Intrinsics, (pos, yaw, pitch): (DVec3, f64, f64)) -> Frustum {
     Frustum::new(pose, k).expect("valid bench intrinsics")
 }
 
-fn percentile(sorted: &[f64], q: f64) -> f64 {
+pub(crate) fn percentile(sorted: &[f64], q: f64) -> f64 {
     sorted[((sorted.len() - 1) as f64 * q).round() as usize]
 }
 

@@ -1,6 +1,7 @@
 //! `worldpack`: the product's command line.
 
 mod bench;
+mod bench_step;
 mod demo;
 mod geometry;
 mod plan;
@@ -113,6 +114,10 @@ enum SimCommand {
     },
 }
 
+fn parse_provider(s: &str) -> Result<model::Provider, String> {
+    s.parse()
+}
+
 fn parse_pixel(s: &str) -> Result<(u32, u32), String> {
     let (u, v) = s.split_once(',').ok_or_else(|| format!("expected u,v, got {s:?}"))?;
     let n = |t: &str| t.trim().parse::<u32>().map_err(|_| format!("expected whole pixel coordinates u,v, got {s:?}"));
@@ -134,6 +139,41 @@ enum BenchCommand {
         /// Print JSON instead of a table.
         #[arg(long)]
         json: bool,
+    },
+    /// Model step cost: denoiser call latency and memory for the 4-frame baseline and the packed
+    /// 22-frame WorldPack context, and next-frame latency at several sampler step counts.
+    Step {
+        /// A model folder (ONNX graphs + manifest.json).
+        #[arg(long, default_value = "fixtures/small")]
+        model: PathBuf,
+        /// Execution provider: cpu, cuda (fails when absent) or auto.
+        #[arg(long, default_value = "cpu", value_parser = parse_provider)]
+        provider: model::Provider,
+        /// Intra-op threads per session (0: ONNX Runtime's choice).
+        #[arg(long, default_value_t = 1)]
+        threads: usize,
+        /// Comma-separated sampler step counts for the next-frame timing.
+        #[arg(long, value_delimiter = ',', default_value = "1,4,16,50")]
+        steps: Vec<usize>,
+        /// Timed denoiser calls per layout.
+        #[arg(long, default_value_t = 50, value_parser = clap::value_parser!(u64).range(1..=100_000))]
+        calls: u64,
+        #[arg(long)]
+        json: bool,
+    },
+    /// (internal) One layout's peak memory, in a process of its own.
+    #[command(hide = true)]
+    StepProbe {
+        #[arg(long)]
+        model: PathBuf,
+        #[arg(long)]
+        layout: String,
+        #[arg(long, value_parser = parse_provider)]
+        provider: model::Provider,
+        #[arg(long)]
+        threads: usize,
+        #[arg(long)]
+        calls: usize,
     },
     /// Renderer frames per second on one core at 64x64, 128x128, 224x224 and 640x360.
     Render {
@@ -165,6 +205,16 @@ fn main() -> ExitCode {
                 bench::print(workload, &rows);
             }
             ExitCode::SUCCESS
+        }
+        Command::Bench { what: BenchCommand::Step { model, provider, threads, steps, calls, json } } => {
+            if let Some(bad) = steps.iter().find(|&&n| n == 0 || n > 1000) {
+                eprintln!("worldpack bench step: --steps must lie in 1..=1000, got {bad}");
+                return ExitCode::from(2);
+            }
+            report(bench_step::run(&model, model::RuntimeOptions { provider, threads }, &steps, calls as usize, json), "bench step")
+        }
+        Command::Bench { what: BenchCommand::StepProbe { model, layout, provider, threads, calls } } => {
+            report(bench_step::probe(&model, &layout, model::RuntimeOptions { provider, threads }, calls), "bench step-probe")
         }
         Command::Bench { what: BenchCommand::Render { frames, seed } } => report(sim::bench_render(frames as usize, seed), "bench render"),
         Command::Sim { what } => match what {

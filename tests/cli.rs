@@ -77,3 +77,32 @@ fn geometry_rejects_duplicate_frame_ids_by_field() {
     let v: serde_json::Value = serde_json::from_str(&out).unwrap();
     assert_eq!(v["error"]["field"], "frames[1].id");
 }
+
+#[test]
+fn bench_step_compares_the_two_contexts() {
+    let fixture = concat!(env!("CARGO_MANIFEST_DIR"), "/fixtures/small");
+    let (code, stdout, stderr) = worldpack(&["bench", "step", "--model", fixture, "--calls", "2", "--steps", "1,2", "--json"], "");
+    assert_eq!(code, 0, "{stderr}");
+    let r: serde_json::Value = serde_json::from_str(&stdout).unwrap();
+    assert_eq!(r["provider"], "cpu");
+    assert_eq!((r["baseline"]["frames"].as_u64(), r["worldpack"]["frames"].as_u64()), (Some(4), Some(22)));
+    assert_eq!(r["baseline"]["context_tokens"], r["worldpack"]["context_tokens"], "the same token budget");
+    for key in ["time_ratio", "peak_ratio"] {
+        assert!(r[key].as_f64().unwrap() > 0.0, "{key}");
+    }
+    let rows = r["next_frame"].as_array().unwrap();
+    assert_eq!(rows.iter().map(|s| s["steps"].as_u64().unwrap()).collect::<Vec<_>>(), [1, 2]);
+}
+
+#[test]
+fn bench_step_bad_input_names_the_flag() {
+    let (code, _, stderr) = worldpack(&["bench", "step", "--model", "/nonexistent/model"], "");
+    assert_eq!(code, 2);
+    assert!(stderr.contains("/nonexistent/model") && stderr.contains("manifest.json"), "{stderr}");
+    let (code, _, stderr) = worldpack(&["bench", "step", "--provider", "gpu"], "");
+    assert_eq!(code, 2);
+    assert!(stderr.contains("--provider") && stderr.contains("cpu, cuda, auto"), "{stderr}");
+    let (code, _, stderr) = worldpack(&["bench", "step", "--steps", "0"], "");
+    assert_eq!(code, 2);
+    assert!(stderr.contains("--steps"), "{stderr}");
+}

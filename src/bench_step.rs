@@ -1,0 +1,227 @@
+//! `worldpack bench step`: what one model step costs. Per denoiser call, the
+//! 4-frame baseline context against the packed 22-frame WorldPack context
+//! (latency in this process, memory in a fresh child process per layout so
+//! the peaks do not mix), and whole next-frame latency at several sampler
+//! step counts.
+
+use std::path::Path;
+use std::process::Command;
+use std::time::Instant;
+
+use anyhow::{Context, Result, bail};
+use model::generate::{Conditioning, gaussian};
+use model::manifest::LayoutSpec;
+use model::{Graph, Manifest, Method, Model, RuntimeOptions, Sampler, Tensor};
+use serde::{Deserialize, Serialize};
+
+use crate::bench::percentile;
+
+/// Every slot present, random latents and poses: a full context of `layout`, batch 1.
+fn full_context(m: &Manifest, layout: &LayoutSpec) -> Context3 {
+    let l = &m.autoencoder.latent;
+    let mut seed = 0;
+    let mut next = |n: usize| {
+        seed += 1;
+        gaussian(seed, n)
+    };
+    let mut context = Vec::new();
+    for s in &layout.slots {
+        let k = s.count;
+        context.push((format!("context_r{}", s.rate), Tensor::new(vec![1, k, l.channels, l.height, l.width], next(k * l.len()))));
+        context.push((format!("context_time_r{}", s.rate), Tensor::new(vec![1, k], (0..k).map(|i| -1.0 - i as f32 * 7.0).collect())));
+        context.push((format!("context_pose_r{}", s.rate), Tensor::new(vec![1, k, 12], next(k * 12))));
+        context.push((format!("context_mask_r{}", s.rate), Tensor::new(vec![1, k], vec![1.0; k])));
+    }
+    let action = Tensor::new(vec![1, m.action.dim], vec![0.0; m.action.dim]);
+    (context, action, Tensor::new(vec![1], vec![1.0]))
+}
+
+/// Context tensors, action, relative time.
+type Context3 = (Vec<(String, Tensor)>, Tensor, Tensor);
+
+/// One denoiser call at batch 1.
+fn call(graph: &Graph, m: &Manifest, ctx: &Context3) -> Result<()> {
+    let l = &m.autoencoder.latent;
+    let x = Tensor::new(vec![1, l.channels, l.height, l.width], gaussian(99, l.len()));
+    let t = Tensor::new(vec![1], vec![500.0]);
+    let mut inputs: Vec<(&str, &Tensor)> = ctx.0.iter().map(|(k, v)| (k.as_str(), v)).collect();
+    inputs.extend([("x_t", &x), ("timestep", &t), ("action", &ctx.1), ("rel_time", &ctx.2)]);
+    graph.run(&inputs)?;
+    Ok(())
+}
+
+fn stats(mut ms: Vec<f64>) -> (f64, f64) {
+    ms.sort_by(f64::total_cmp);
+    (percentile(&ms, 0.5), percentile(&ms, 0.95))
+}
+
+/// Peak memory of one layout, measured by the hidden `bench step-probe`.
+#[derive(Serialize, Deserialize)]
+pub struct Probe {
+    pub layout: String,
+    /// Resident memory after loading the graph, before any call (KiB).
+    pub loaded_kib: u64,
+    /// Peak resident memory over the calls (VmHWM, KiB).
+    pub peak_kib: u64,
+}
+
+fn status_kib(key: &str) -> Result<u64> {
+    let status = std::fs::read_to_string("/proc/self/status").context("reading /proc/self/status (Linux only)")?;
+    let line = status.lines().find(|l| l.starts_with(key)).with_context(|| format!("no {key} in /proc/self/status"))?;
+    Ok(line.split_whitespace().nth(1).unwrap_or("0").parse()?)
+}
+
+/// Child process: open one layout's graph only, call it, print a `Probe` as JSON.
+pub fn probe(dir: &Path, layout: &str, options: RuntimeOptions, calls: usize) -> Result<()> {
+    let manifest = Manifest::load(dir)?;
+    let spec = manifest.layout(layout).with_context(|| format!("--layout: no layout {layout:?}"))?.clone();
+    let graph = Graph::open(dir, &spec.graph(), options)?;
+    let ctx = full_context(&manifest, &spec);
+    let loaded_kib = status_kib("VmRSS:")?;
+    // Reset the high-water mark so the peak is the calls' own, not the load's (Linux >= 4.0).
+    let _ = std::fs::write("/proc/self/clear_refs", "5");
+    for _ in 0..calls {
+        call(&graph, &manifest, &ctx)?;
+    }
+    let peak_kib = status_kib("VmHWM:")?;
+    println!("{}", serde_json::to_string(&Probe { layout: layout.into(), loaded_kib, peak_kib })?);
+    Ok(())
+}
+
+#[derive(Serialize)]
+struct Report {
+    model: String,
+    provider: String,
+    threads: usize,
+    calls: usize,
+    baseline: LayoutRow,
+    worldpack: LayoutRow,
+    time_ratio: f64,
+    peak_ratio: f64,
+    call_memory_ratio: f64,
+    next_frame: Vec<StepRow>,
+}
+
+#[derive(Serialize)]
+struct LayoutRow {
+    frames: usize,
+    context_tokens: u64,
+    median_ms: f64,
+    p95_ms: f64,
+    peak_mib: f64,
+    call_memory_mib: f64,
+}
+
+#[derive(Serialize)]
+struct StepRow {
+    steps: usize,
+    baseline_ms: f64,
+    worldpack_ms: f64,
+}
+
+pub fn run(dir: &Path, options: RuntimeOptions, steps: &[usize], calls: usize, json: bool) -> Result<()> {
+    let m = Model::load(dir, options)?;
+    let (Some(base), Some(packed)) = (m.manifest().layout("baseline").cloned(), m.manifest().layout("worldpack").cloned()) else {
+        bail!("--model: {} needs both a \"baseline\" and a \"worldpack\" layout to compare", dir.display());
+    };
+    let (gb, gp) = (m.denoiser("baseline")?, m.denoiser("worldpack")?);
+    let (cb, cp) = (full_context(m.manifest(), &base), full_context(m.manifest(), &packed));
+    for _ in 0..3 {
+        call(gb, m.manifest(), &cb)?;
+        call(gp, m.manifest(), &cp)?;
+    }
+    // Interleaved, so drift in machine load hits both layouts alike.
+    let (mut tb, mut tp) = (Vec::new(), Vec::new());
+    for _ in 0..calls {
+        let s = Instant::now();
+        call(gb, m.manifest(), &cb)?;
+        tb.push(s.elapsed().as_secs_f64() * 1e3);
+        let s = Instant::now();
+        call(gp, m.manifest(), &cp)?;
+        tp.push(s.elapsed().as_secs_f64() * 1e3);
+    }
+    let ((mb, pb), (mp, pp)) = (stats(tb), stats(tp));
+
+    let probe_of = |layout: &str| -> Result<Probe> {
+        let exe = std::env::current_exe()?;
+        let out = Command::new(exe)
+            .args(["bench", "step-probe", "--model", &dir.to_string_lossy(), "--layout", layout, "--calls", "5"])
+            .args(["--provider", options_provider(options), "--threads", &options.threads.to_string()])
+            .output()?;
+        if !out.status.success() {
+            bail!("memory probe for {layout} failed: {}", String::from_utf8_lossy(&out.stderr));
+        }
+        Ok(serde_json::from_slice(&out.stdout)?)
+    };
+    let (qb, qp) = (probe_of("baseline")?, probe_of("worldpack")?);
+
+    let mut next_frame = Vec::new();
+    for &n in steps {
+        let sampler = Sampler::new(&m.manifest().diffusion, n, Method::Ancestral, 0.0)?;
+        let time_one = |layout: &str, ctx: &Context3| -> Result<f64> {
+            let cond = Conditioning { context: &ctx.0, action: &ctx.1, rel_time: &ctx.2 };
+            let mut ms = Vec::new();
+            for rep in 0..3 {
+                let s = Instant::now();
+                let latent = m.sample(layout, &cond, &sampler, rep)?;
+                m.decode(&latent)?;
+                ms.push(s.elapsed().as_secs_f64() * 1e3);
+            }
+            Ok(stats(ms).0)
+        };
+        next_frame.push(StepRow { steps: n, baseline_ms: time_one("baseline", &cb)?, worldpack_ms: time_one("worldpack", &cp)? });
+    }
+
+    let mib = |k: u64| k as f64 / 1024.0;
+    let row = |l: &LayoutSpec, median_ms, p95_ms, q: &Probe| LayoutRow {
+        frames: l.frames,
+        context_tokens: l.context_tokens,
+        median_ms,
+        p95_ms,
+        peak_mib: mib(q.peak_kib),
+        call_memory_mib: mib(q.peak_kib.saturating_sub(q.loaded_kib)),
+    };
+    let report = Report {
+        model: dir.display().to_string(),
+        provider: m.provider().into(),
+        threads: options.threads,
+        calls,
+        time_ratio: mp / mb,
+        peak_ratio: qp.peak_kib as f64 / qb.peak_kib as f64,
+        call_memory_ratio: qp.peak_kib.saturating_sub(qp.loaded_kib) as f64 / qb.peak_kib.saturating_sub(qb.loaded_kib).max(1) as f64,
+        baseline: row(&base, mb, pb, &qb),
+        worldpack: row(&packed, mp, pp, &qp),
+        next_frame,
+    };
+    if json {
+        println!("{}", serde_json::to_string_pretty(&report)?);
+    } else {
+        print(&report);
+    }
+    Ok(())
+}
+
+fn options_provider(o: RuntimeOptions) -> &'static str {
+    match o.provider {
+        model::Provider::Cpu => "cpu",
+        model::Provider::Cuda => "cuda",
+        model::Provider::Auto => "auto",
+    }
+}
+
+fn print(r: &Report) {
+    println!("model {} on {} ({} intra-op threads; 0 = ONNX Runtime's choice), {} calls per layout\n", r.model, r.provider, r.threads, r.calls);
+    println!("{:<11} {:>7} {:>8} {:>12} {:>10} {:>11} {:>15}", "context", "frames", "tokens", "median (ms)", "p95 (ms)", "peak (MiB)", "per call (MiB)");
+    for (name, l) in [("baseline", &r.baseline), ("worldpack", &r.worldpack)] {
+        println!("{:<11} {:>7} {:>8} {:>12.3} {:>10.3} {:>11.1} {:>15.2}", name, l.frames, l.context_tokens, l.median_ms, l.p95_ms, l.peak_mib, l.call_memory_mib);
+    }
+    println!(
+        "\nworldpack / baseline: time {:.3}x, peak memory {:.3}x, per-call memory {:.3}x  (paper: 1.16x time, 1.12x memory)",
+        r.time_ratio, r.peak_ratio, r.call_memory_ratio
+    );
+    println!("\nnext frame (sampler + decode), median of 3:");
+    println!("{:>6} {:>14} {:>15}", "steps", "baseline (ms)", "worldpack (ms)");
+    for s in &r.next_frame {
+        println!("{:>6} {:>14.1} {:>15.1}", s.steps, s.baseline_ms, s.worldpack_ms);
+    }
+}
