@@ -51,6 +51,11 @@ impl Graph {
         self.provider
     }
 
+    /// Sessions opened so far (idle ones; busy ones are out on loan).
+    pub fn sessions(&self) -> usize {
+        self.idle.lock().unwrap_or_else(|p| p.into_inner()).len()
+    }
+
     pub fn spec(&self) -> &GraphSpec {
         &self.spec
     }

@@ -62,3 +62,21 @@ fn frames_round_trip_and_resize_with_their_intrinsics() {
     let err = frame_to_tensor(&rgb[1..], w, h, &k, 4, 3).unwrap_err().to_string();
     assert!(err.starts_with("image:"), "{err}");
 }
+
+#[test]
+fn concurrent_callers_get_their_own_sessions_and_the_same_answers() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../fixtures/small");
+    let m = Model::load(&dir, RuntimeOptions { provider: Provider::Cpu, threads: 1 }).unwrap();
+    let layout = m.manifest().layout("worldpack").unwrap();
+    let inputs: Vec<(String, Tensor)> = layout.inputs.iter().map(|s| (s.name.clone(), reference(&s.name))).collect();
+    let feed: Vec<(&str, &Tensor)> = inputs.iter().map(|(n, t)| (n.as_str(), t)).collect();
+    let graph = m.denoiser("worldpack").unwrap();
+    let alone = graph.run(&feed).unwrap();
+    let results: Vec<_> = std::thread::scope(|s| {
+        let workers: Vec<_> = (0..4).map(|_| s.spawn(|| (0..3).map(|_| graph.run(&feed).unwrap()).collect::<Vec<_>>())).collect();
+        workers.into_iter().flat_map(|w| w.join().unwrap()).collect()
+    });
+    assert_eq!(results.len(), 12);
+    assert!(results.iter().all(|r| *r == alone), "every concurrent call gives the sequential answer");
+    assert!(graph.sessions() >= 2, "concurrent calls opened more sessions instead of queueing on one");
+}
