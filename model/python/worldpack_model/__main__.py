@@ -28,7 +28,8 @@ def main() -> None:
     p = sub.add_parser("encode", help="cache every frame's scaled latent under run/latents")
     common(p)
 
-    p = sub.add_parser("train", help="train the CDiT on one policy's plans (resumes from run/cdit-<policy>.pt)")
+    p = sub.add_parser("train", help="train the CDiT on one policy's plans (resumes from run/cdit-<policy>.pt); "
+                       "trains the autoencoder and caches latents first when they are missing")
     common(p)
     p.add_argument("--policy", default="worldpack", choices=["baseline", "memory_retrieval", "worldpack", "nearest_frame_packing"])
     p.add_argument("--steps", type=int, default=20000)
@@ -57,6 +58,10 @@ def main() -> None:
     elif a.stage == "encode":
         train.encode(a.data, a.run, a.device)
     elif a.stage == "train":
+        # One command from a dataset to a CDiT: earlier stages run first when their output is missing.
+        if not (a.run / "autoencoder.pt").exists():
+            train.train_autoencoder(a.data, a.run, 4000, 32, 1e-3, a.device, a.minutes)
+        train.encode(a.data, a.run, a.device)  # skips trajectories already cached
         train.train_cdit(a.data, a.run, a.policy, a.steps, a.batch, a.lr, a.ema, a.device, a.minutes, a.init_from)
     elif a.stage == "export":
         from . import export
