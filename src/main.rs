@@ -28,6 +28,34 @@ enum Command {
         #[arg(long, default_value_t = 15, value_parser = clap::value_parser!(u32).range(1..=500))]
         range: u32,
     },
+    /// Serve the REST API (sessions, step, observe, select) over the committed model and a local store.
+    Serve {
+        /// Model folder (ONNX graphs + manifest.json).
+        #[arg(long, default_value = "fixtures/small")]
+        model: PathBuf,
+        /// Run without a model: observe and select work, step answers 409.
+        #[arg(long, conflicts_with = "model")]
+        memory_only: bool,
+        /// The store file (created when missing; sessions in it are restored).
+        #[arg(long, default_value = "data/worldpack.redb")]
+        store: PathBuf,
+        #[arg(long, default_value = "127.0.0.1:8080")]
+        addr: std::net::SocketAddr,
+        #[arg(long, default_value = "cpu", value_parser = parse_provider)]
+        provider: model::Provider,
+        /// Intra-op threads per model session.
+        #[arg(long, default_value_t = 1)]
+        threads: usize,
+        /// Sampler steps per generated frame (a step request may override).
+        #[arg(long, default_value_t = 16, value_parser = clap::value_parser!(u64).range(1..=1000))]
+        steps: u64,
+        /// Sampler: ancestral or ddim.
+        #[arg(long, default_value = "ancestral", value_parser = parse_method)]
+        method: model::Method,
+        /// Policy of sessions that do not name one: baseline, nearest_frame_packing, memory_retrieval, worldpack, worldmem_greedy.
+        #[arg(long, default_value = "worldpack", value_parser = plan::parse_policy)]
+        policy: memory::PolicyKind,
+    },
     /// Benchmarks (tables on stdout; --json for machines).
     Bench {
         #[command(subcommand)]
@@ -115,6 +143,10 @@ enum SimCommand {
 }
 
 fn parse_provider(s: &str) -> Result<model::Provider, String> {
+    s.parse()
+}
+
+fn parse_method(s: &str) -> Result<model::Method, String> {
     s.parse()
 }
 
@@ -228,6 +260,19 @@ fn main() -> ExitCode {
                 report(sim::render_one(&out, seed, pose, biome, size, probe), "sim render")
             }
         },
+        Command::Serve { model, memory_only, store, addr, provider, threads, steps, method, policy } => {
+            let config = api::Config {
+                addr,
+                store,
+                model: (!memory_only).then_some(model),
+                runtime: model::RuntimeOptions { provider, threads },
+                steps: steps as usize,
+                method,
+                policy: serde_json::json!({ "kind": policy }),
+                ..api::Config::default()
+            };
+            report(serve(config), "serve")
+        }
         Command::Plan { data, policies, keep_last } => report(plan::run(&data, &policies, keep_last), "plan"),
         Command::Geometry { input } => {
             let text = match input {
@@ -249,6 +294,17 @@ fn main() -> ExitCode {
             }
         }
     }
+}
+
+fn serve(config: api::Config) -> anyhow::Result<()> {
+    let runtime = tokio::runtime::Builder::new_multi_thread().enable_all().build()?;
+    runtime.block_on(async {
+        let server = api::Server::bind(config).await.map_err(anyhow::Error::msg)?;
+        println!("worldpack serve: {}", server.description);
+        use std::io::Write;
+        std::io::stdout().flush()?;
+        server.run().await.map_err(anyhow::Error::msg)
+    })
 }
 
 /// Prints an error chain as one line naming the command; exit code 2.

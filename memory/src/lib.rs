@@ -18,6 +18,7 @@ pub mod camera;
 pub mod error;
 pub mod frustum;
 pub mod index;
+pub mod input;
 pub mod overlap;
 pub mod policy;
 pub mod pose;

@@ -13,7 +13,7 @@ pub const HEIGHT: i32 = 64;
 /// Water fills air below this level.
 pub const SEA_LEVEL: i32 = 17;
 
-#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Biome {
     Plains,

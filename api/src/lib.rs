@@ -1,0 +1,173 @@
+//! The WorldPack REST server: sessions of frames with poses, a step endpoint
+//! that generates the next frame from a packed memory context, and a durable
+//! store underneath. See docs/api.md.
+
+pub mod error;
+mod routes;
+pub mod session;
+pub mod store;
+
+use std::collections::HashMap;
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicU64, AtomicUsize};
+use std::sync::{Arc, Mutex, RwLock};
+use std::time::Duration;
+
+use axum::Router;
+use axum::extract::DefaultBodyLimit;
+use model::{Method, Model};
+use tokio::sync::Semaphore;
+use world::World;
+
+pub use error::ApiError;
+use session::Session;
+use store::Store;
+
+/// Everything `worldpack serve` can be told.
+#[derive(Clone, Debug)]
+pub struct Config {
+    pub addr: SocketAddr,
+    pub store: PathBuf,
+    /// `None`: memory-only (observe and select work, step does not).
+    pub model: Option<PathBuf>,
+    pub runtime: model::RuntimeOptions,
+    /// Sampler steps when a step request does not say.
+    pub steps: usize,
+    pub method: Method,
+    /// The policy of sessions that do not name one (a `memory::PolicySpec` as JSON).
+    pub policy: serde_json::Value,
+    pub max_body_bytes: usize,
+    /// Step requests waiting on one session before the next gets 429.
+    pub max_queue_per_session: usize,
+    /// Model calls in flight across sessions before the next gets 503.
+    pub max_inflight: usize,
+    pub request_timeout: Duration,
+}
+
+impl Default for Config {
+    fn default() -> Self {
+        Config {
+            addr: "127.0.0.1:8080".parse().unwrap(),
+            store: PathBuf::from("data/worldpack.redb"),
+            model: Some(PathBuf::from("fixtures/small")),
+            runtime: model::RuntimeOptions { provider: model::Provider::Cpu, threads: 1 },
+            steps: 16,
+            method: Method::Ancestral,
+            policy: serde_json::json!({ "kind": "worldpack" }),
+            max_body_bytes: 16 << 20,
+            max_queue_per_session: 8,
+            max_inflight: 64,
+            request_timeout: Duration::from_secs(120),
+        }
+    }
+}
+
+/// A session and the number of requests queued on it.
+pub(crate) struct Slot {
+    pub session: Arc<tokio::sync::Mutex<Session>>,
+    pub waiting: AtomicUsize,
+}
+
+#[derive(Default)]
+pub(crate) struct Metrics {
+    pub steps: AtomicU64,
+    pub observes: AtomicU64,
+    pub selects: AtomicU64,
+    pub sessions_created: AtomicU64,
+    pub step_micros: AtomicU64,
+}
+
+pub(crate) struct AppState {
+    pub config: Config,
+    pub store: Store,
+    pub model: Option<Model>,
+    pub sessions: RwLock<HashMap<u64, Arc<Slot>>>,
+    pub worlds: Mutex<HashMap<u64, Arc<World>>>,
+    pub inflight: Semaphore,
+    pub metrics: Metrics,
+}
+
+impl AppState {
+    pub fn world(&self, seed: u64) -> Arc<World> {
+        if let Some(w) = self.worlds.lock().unwrap_or_else(|p| p.into_inner()).get(&seed) {
+            return w.clone();
+        }
+        let w = Arc::new(World::generate(seed));
+        self.worlds.lock().unwrap_or_else(|p| p.into_inner()).insert(seed, w.clone());
+        w
+    }
+}
+
+/// A bound, not yet running server: its address is known (port 0 resolved).
+pub struct Server {
+    listener: tokio::net::TcpListener,
+    router: Router,
+    pub description: String,
+}
+
+impl Server {
+    /// Opens the store (restoring every session), loads the model, binds.
+    pub async fn bind(config: Config) -> Result<Server, String> {
+        let store = Store::open(&config.store).map_err(|e| e.to_string())?;
+        let model = match &config.model {
+            Some(dir) => Some(Model::load(dir, config.runtime).map_err(|e| format!("--model: {e}"))?),
+            None => None,
+        };
+        session::policy_of(&config.policy).map_err(|e| format!("--policy: {}", e.message))?;
+        let state = Arc::new(AppState {
+            inflight: Semaphore::new(config.max_inflight),
+            store,
+            model,
+            sessions: RwLock::new(HashMap::new()),
+            worlds: Mutex::new(HashMap::new()),
+            metrics: Metrics::default(),
+            config: config.clone(),
+        });
+        let mut restored = 0;
+        for (id, record) in state.store.sessions().map_err(|e| e.to_string())? {
+            let frames = state.store.frames(id).map_err(|e| e.to_string())?;
+            let world = record.world_seed.map(|s| state.world(s));
+            let s = Session::restore(id, record, frames, world).map_err(|e| format!("restoring session {id}: {}", e.message))?;
+            restored += 1;
+            let slot = Slot { session: Arc::new(tokio::sync::Mutex::new(s)), waiting: AtomicUsize::new(0) };
+            state.sessions.write().unwrap().insert(id, Arc::new(slot));
+        }
+        let router = routes::router(state.clone())
+            .layer(DefaultBodyLimit::max(config.max_body_bytes))
+            .layer(tower_http::timeout::TimeoutLayer::with_status_code(axum::http::StatusCode::REQUEST_TIMEOUT, config.request_timeout));
+        let listener = tokio::net::TcpListener::bind(config.addr).await.map_err(|e| format!("--addr {}: {e}", config.addr))?;
+        let addr = listener.local_addr().map_err(|e| e.to_string())?;
+        let description = format!(
+            "listening on http://{addr} (model: {}, provider: {}, store: {}, {restored} sessions restored)",
+            config.model.as_ref().map_or("none (memory only)".into(), |p| p.display().to_string()),
+            state.model.as_ref().map_or("-", |m| m.provider()),
+            config.store.display()
+        );
+        Ok(Server { listener, router, description })
+    }
+
+    pub fn local_addr(&self) -> SocketAddr {
+        self.listener.local_addr().expect("bound listener has an address")
+    }
+
+    /// Serves until Ctrl-C or SIGTERM, finishing requests in flight.
+    pub async fn run(self) -> Result<(), String> {
+        axum::serve(self.listener, self.router).with_graceful_shutdown(shutdown()).await.map_err(|e| e.to_string())
+    }
+}
+
+async fn shutdown() {
+    let ctrl_c = async {
+        let _ = tokio::signal::ctrl_c().await;
+    };
+    let term = async {
+        match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
+            Ok(mut s) => {
+                s.recv().await;
+            }
+            Err(_) => std::future::pending::<()>().await,
+        }
+    };
+    tokio::select! { _ = ctrl_c => {}, _ = term => {} }
+}

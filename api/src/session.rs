@@ -1,0 +1,109 @@
+//! A live session: its policy, the indexed frame memory, every frame's pose
+//! and latent, and (in the synthetic world) the player for the motion model.
+
+use std::sync::Arc;
+
+use memory::{ContextPlan, FrameMemory, Frustum, Intrinsics, MemoryFrame, Policy, PolicySpec, Pose};
+use world::World;
+use world::agent::{Action, PlayerState, WALK_SPEED};
+
+use crate::error::ApiError;
+use crate::store::{FrameMeta, FrameRecord, SessionRecord};
+
+pub struct Frame {
+    pub pose: Pose,
+    pub time: u64,
+    pub latent: Vec<f32>,
+    pub player: Option<PlayerState>,
+}
+
+pub struct Session {
+    pub id: u64,
+    pub record: SessionRecord,
+    pub policy: Policy,
+    pub memory: FrameMemory,
+    pub frames: Vec<Frame>,
+    pub last_plan: Option<ContextPlan>,
+    pub world: Option<Arc<World>>,
+}
+
+pub fn policy_of(spec: &serde_json::Value) -> Result<Policy, ApiError> {
+    let spec: PolicySpec = serde_path_to_error::deserialize(spec.clone())
+        .map_err(|e| ApiError::bad(format!("policy.{}", e.path()).trim_end_matches(".").to_string(), e.inner().to_string()))?;
+    Ok(spec.into_policy().map_err(|e| e.within("policy"))?)
+}
+
+pub fn pose_of(meta: &FrameMeta) -> Result<Pose, ApiError> {
+    let m = meta.c2w;
+    Ok(Pose::from_rows([[m[0][0], m[0][1], m[0][2]], [m[1][0], m[1][1], m[1][2]], [m[2][0], m[2][1], m[2][2]]], [m[0][3], m[1][3], m[2][3]])?)
+}
+
+impl Session {
+    /// Rebuilds a session from its stored record and frames (server start).
+    pub fn restore(id: u64, record: SessionRecord, frames: Vec<FrameRecord>, world: Option<Arc<World>>) -> Result<Session, ApiError> {
+        let policy = policy_of(&record.policy)?;
+        let mut s = Session { id, record, policy, memory: FrameMemory::new(), frames: Vec::new(), last_plan: None, world };
+        for f in frames {
+            s.push(f.meta.time, pose_of(&f.meta)?, f.latent, f.meta.player.map(player_from))?;
+        }
+        Ok(s)
+    }
+
+    pub fn intrinsics(&self) -> &Intrinsics {
+        &self.record.intrinsics
+    }
+
+    pub fn frustum(&self, pose: Pose) -> Result<Frustum, ApiError> {
+        Ok(Frustum::new(pose, self.record.intrinsics)?)
+    }
+
+    /// Adds a committed frame to the in-memory index.
+    pub fn push(&mut self, time: u64, pose: Pose, latent: Vec<f32>, player: Option<PlayerState>) -> Result<(), ApiError> {
+        let frustum = self.frustum(pose)?;
+        self.memory.insert(MemoryFrame { id: self.frames.len() as u64, time, frustum })?;
+        self.frames.push(Frame { pose, time, latent, player });
+        Ok(())
+    }
+
+    pub fn next_time(&self) -> u64 {
+        self.frames.last().map_or(0, |f| f.time + 1)
+    }
+
+    /// The pose after `action`: the world's physics in a synthetic session,
+    /// else the kinematic model.
+    pub fn motion(&self, action: &Action) -> Result<(Pose, Option<PlayerState>), ApiError> {
+        let last = self.frames.last().ok_or_else(|| ApiError::internal("session without frames"))?;
+        match (&self.world, last.player) {
+            (Some(world), Some(player)) => {
+                let next = world::agent::step(world, &player, action);
+                Ok((next.camera(), Some(next)))
+            }
+            _ => Ok((kinematic(&last.pose, action), None)),
+        }
+    }
+}
+
+pub fn player_from(p: [f64; 5]) -> PlayerState {
+    PlayerState { feet: [p[0], p[1], p[2]], yaw_deg: p[3], pitch_deg: p[4] }
+}
+
+pub fn player_to(p: &PlayerState) -> [f64; 5] {
+    [p.feet[0], p.feet[1], p.feet[2], p.yaw_deg, p.pitch_deg]
+}
+
+/// The motion model for worlds the server cannot simulate: turn about the
+/// world's vertical (−y in OpenCV world terms: the camera's "up" is −y), then
+/// move `WALK_SPEED` along the pressed keys in the horizontal plane. No
+/// collisions, no gravity; jump is ignored.
+pub fn kinematic(pose: &Pose, a: &Action) -> Pose {
+    use glam::{DMat3, DVec3};
+    let yaw = DMat3::from_rotation_y(-a.yaw_deg.to_radians());
+    let rotation = yaw * pose.rotation() * DMat3::from_rotation_x(-a.pitch_deg.to_radians());
+    let forward = rotation * DVec3::Z;
+    let flat = DVec3::new(forward.x, 0.0, forward.z).try_normalize().unwrap_or(DVec3::Z);
+    let right = DVec3::new(-flat.z, 0.0, flat.x);
+    let keys = |on: bool| if on { 1.0 } else { 0.0 };
+    let dir = flat * (keys(a.forward) - keys(a.back)) + right * (keys(a.right) - keys(a.left));
+    let step = dir.try_normalize().map_or(DVec3::ZERO, |d| d * WALK_SPEED);
+    Pose::new(rotation, pose.position() + step).expect("a rotation times rotations is a rotation")
+}

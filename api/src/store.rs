@@ -1,0 +1,166 @@
+//! The durable store: sessions and every frame, in one `redb` file. Each
+//! write is its own transaction committed with `Durability::Immediate`
+//! (fsync before `commit` returns), and the server answers only after that,
+//! so an acknowledged frame survives a crash.
+
+use std::path::Path;
+
+use redb::{Database, Durability, ReadableTable, TableDefinition};
+use serde::{Deserialize, Serialize};
+
+/// session id → session record (JSON).
+const SESSIONS: TableDefinition<u64, &[u8]> = TableDefinition::new("sessions");
+/// (session id, frame index) → frame record (see [`FrameRecord::encode`]).
+const FRAMES: TableDefinition<(u64, u64), &[u8]> = TableDefinition::new("frames");
+/// "next_session" → the next session id.
+const COUNTERS: TableDefinition<&str, u64> = TableDefinition::new("counters");
+
+#[derive(Debug, thiserror::Error)]
+#[error("store: {0}")]
+pub struct StoreError(String);
+
+fn err(e: impl std::fmt::Display) -> StoreError {
+    StoreError(e.to_string())
+}
+
+/// What a session was created with; enough to rebuild it after a restart.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct SessionRecord {
+    /// The policy as the caller gave it (a `memory::PolicySpec`).
+    pub policy: serde_json::Value,
+    pub intrinsics: memory::Intrinsics,
+    /// `Some(seed)` for a session in the synthetic world.
+    pub world_seed: Option<u64>,
+}
+
+/// One stored frame. `latent` is the model's scaled latent (absent when the
+/// server runs without a model); `png` the image when there is one.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FrameRecord {
+    pub meta: FrameMeta,
+    pub latent: Vec<f32>,
+    pub png: Vec<u8>,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct FrameMeta {
+    /// Camera-to-world, OpenCV axes, row-major 4×4.
+    pub c2w: [[f64; 4]; 4],
+    pub time: u64,
+    /// `observed` (given by the caller) or `generated` (by the model).
+    pub source: String,
+    pub action: Option<Vec<f32>>,
+    /// Synthetic sessions: the player's feet, yaw and pitch (Minecraft degrees), for the motion model.
+    pub player: Option<[f64; 5]>,
+}
+
+impl FrameRecord {
+    /// `[u32 header length][header JSON][latent f32 LE][png]`, the header
+    /// holding the meta and the latent's length.
+    pub fn encode(&self) -> Vec<u8> {
+        let header = serde_json::to_vec(&(&self.meta, self.latent.len())).expect("frame meta serialises");
+        let mut out = Vec::with_capacity(4 + header.len() + self.latent.len() * 4 + self.png.len());
+        out.extend_from_slice(&(header.len() as u32).to_le_bytes());
+        out.extend_from_slice(&header);
+        for v in &self.latent {
+            out.extend_from_slice(&v.to_le_bytes());
+        }
+        out.extend_from_slice(&self.png);
+        out
+    }
+
+    pub fn decode(bytes: &[u8]) -> Result<FrameRecord, StoreError> {
+        let n = u32::from_le_bytes(bytes.get(..4).ok_or_else(|| err("truncated frame"))?.try_into().unwrap()) as usize;
+        let header = bytes.get(4..4 + n).ok_or_else(|| err("truncated frame header"))?;
+        let (meta, latent_len): (FrameMeta, usize) = serde_json::from_slice(header).map_err(err)?;
+        let start = 4 + n;
+        let lat = bytes.get(start..start + latent_len * 4).ok_or_else(|| err("truncated latent"))?;
+        let latent = lat.chunks_exact(4).map(|c| f32::from_le_bytes(c.try_into().unwrap())).collect();
+        Ok(FrameRecord { meta, latent, png: bytes[start + latent_len * 4..].to_vec() })
+    }
+}
+
+pub struct Store {
+    db: Database,
+}
+
+impl Store {
+    pub fn open(path: &Path) -> Result<Store, StoreError> {
+        if let Some(dir) = path.parent() {
+            std::fs::create_dir_all(dir).map_err(|e| err(format!("cannot create {}: {e}", dir.display())))?;
+        }
+        let db = Database::create(path).map_err(|e| err(format!("{}: {e}", path.display())))?;
+        let txn = db.begin_write().map_err(err)?;
+        txn.open_table(SESSIONS).map_err(err)?;
+        txn.open_table(FRAMES).map_err(err)?;
+        txn.open_table(COUNTERS).map_err(err)?;
+        txn.commit().map_err(err)?;
+        Ok(Store { db })
+    }
+
+    fn write<T>(&self, f: impl FnOnce(&redb::WriteTransaction) -> Result<T, StoreError>) -> Result<T, StoreError> {
+        let mut txn = self.db.begin_write().map_err(err)?;
+        txn.set_durability(Durability::Immediate);
+        let out = f(&txn)?;
+        txn.commit().map_err(err)?;
+        Ok(out)
+    }
+
+    /// Stores a new session with its first frame; returns its id.
+    pub fn create_session(&self, record: &SessionRecord, first: &FrameRecord) -> Result<u64, StoreError> {
+        self.write(|txn| {
+            let mut counters = txn.open_table(COUNTERS).map_err(err)?;
+            let id = counters.get("next_session").map_err(err)?.map_or(1, |v| v.value());
+            counters.insert("next_session", id + 1).map_err(err)?;
+            txn.open_table(SESSIONS).map_err(err)?.insert(id, serde_json::to_vec(record).map_err(err)?.as_slice()).map_err(err)?;
+            txn.open_table(FRAMES).map_err(err)?.insert((id, 0), first.encode().as_slice()).map_err(err)?;
+            Ok(id)
+        })
+    }
+
+    pub fn put_frame(&self, session: u64, index: u64, frame: &FrameRecord) -> Result<(), StoreError> {
+        self.write(|txn| {
+            txn.open_table(FRAMES).map_err(err)?.insert((session, index), frame.encode().as_slice()).map_err(err)?;
+            Ok(())
+        })
+    }
+
+    /// Removes a session and its frames; false when there was none.
+    pub fn delete_session(&self, id: u64) -> Result<bool, StoreError> {
+        self.write(|txn| {
+            let existed = txn.open_table(SESSIONS).map_err(err)?.remove(id).map_err(err)?.is_some();
+            let mut frames = txn.open_table(FRAMES).map_err(err)?;
+            frames.retain_in((id, 0)..=(id, u64::MAX), |_, _| false).map_err(err)?;
+            Ok(existed)
+        })
+    }
+
+    pub fn sessions(&self) -> Result<Vec<(u64, SessionRecord)>, StoreError> {
+        let txn = self.db.begin_read().map_err(err)?;
+        let table = txn.open_table(SESSIONS).map_err(err)?;
+        let mut out = Vec::new();
+        for row in table.iter().map_err(err)? {
+            let (k, v) = row.map_err(err)?;
+            out.push((k.value(), serde_json::from_slice(v.value()).map_err(err)?));
+        }
+        Ok(out)
+    }
+
+    /// Every frame of a session, in index order.
+    pub fn frames(&self, session: u64) -> Result<Vec<FrameRecord>, StoreError> {
+        let txn = self.db.begin_read().map_err(err)?;
+        let table = txn.open_table(FRAMES).map_err(err)?;
+        let mut out = Vec::new();
+        for row in table.range((session, 0)..=(session, u64::MAX)).map_err(err)? {
+            let (_, v) = row.map_err(err)?;
+            out.push(FrameRecord::decode(v.value())?);
+        }
+        Ok(out)
+    }
+
+    pub fn frame(&self, session: u64, index: u64) -> Result<Option<FrameRecord>, StoreError> {
+        let txn = self.db.begin_read().map_err(err)?;
+        let table = txn.open_table(FRAMES).map_err(err)?;
+        table.get((session, index)).map_err(err)?.map(|v| FrameRecord::decode(v.value())).transpose()
+    }
+}
