@@ -148,6 +148,18 @@ fn latent_of(st: &AppState, rgb: &[u8], w: u32, h: u32, k: &Intrinsics, field: &
     Ok(m.encode(&t)?.data)
 }
 
+/// Positions are capped at ±1e9 world units: beyond that the f64 geometry
+/// has no centimetres left and any answer would be noise.
+const MAX_COORDINATE: f64 = 1e9;
+
+fn pose_from(input: &PoseInput, field: &str) -> Res<Pose> {
+    let pose = input.resolve().map_err(|e| e.within(field))?;
+    if pose.position().abs().max_element() > MAX_COORDINATE {
+        return Err(ApiError::bad(format!("{field}.position"), format!("must lie within ±{MAX_COORDINATE:e} world units")));
+    }
+    Ok(pose)
+}
+
 fn validate_action(a: &Action) -> Res<()> {
     for (field, v) in [("action.yaw_deg", a.yaw_deg), ("action.pitch_deg", a.pitch_deg)] {
         if !v.is_finite() || v.abs() > 180.0 {
@@ -251,7 +263,7 @@ async fn create(State(st): St, headers: HeaderMap, body: Result<Bytes, BytesReje
                 let mut out = Vec::new();
                 for (i, f) in frames.iter().enumerate() {
                     let at = format!("frames[{i}]");
-                    let pose = f.pose.resolve().map_err(|e| e.within(&format!("{at}.pose")))?;
+                    let pose = pose_from(&f.pose, &format!("{at}.pose"))?;
                     let (rgb, w, h) = decode_png(&format!("{at}.image_png"), &f.image_png)?;
                     let latent = latent_of(&st, &rgb, w, h, &k, &format!("{at}.image_png"))?;
                     out.push(FrameRecord { meta: meta(&pose, i as u64, "observed", None, None), latent, png: encode_png(&rgb, w, h) });
@@ -343,7 +355,7 @@ async fn step(State(st): St, id: Result<Path<u64>, PathRejection>, headers: Head
         let m = st.model.as_ref().expect("checked above");
         let t0 = Instant::now();
         let (pose, player) = match &req.pose {
-            Some(p) => (p.resolve().map_err(|e| e.within("pose"))?, None),
+            Some(p) => (pose_from(p, "pose")?, None),
             None => s.motion(&req.action)?,
         };
         let time = s.next_time();
@@ -418,7 +430,7 @@ async fn observe(State(st): St, id: Result<Path<u64>, PathRejection>, headers: H
     if let Some(a) = &req.action {
         validate_action(a)?;
     }
-    let pose = req.pose.resolve().map_err(|e| e.within("pose"))?;
+    let pose = pose_from(&req.pose, "pose")?;
     let (rgb, w, h) = decode_png("image_png", &req.image_png)?;
     let slot = slot(&st, id)?;
     let mut s = lock(&st, &slot).await?;
@@ -450,7 +462,7 @@ struct SelectRequest {
 async fn select(State(st): St, id: Result<Path<u64>, PathRejection>, headers: HeaderMap, body: Result<Bytes, BytesRejection>) -> Res<Json<Value>> {
     let id = session_id(id)?;
     let req: SelectRequest = parse(&headers, body)?;
-    let pose = req.pose.resolve().map_err(|e| e.within("pose"))?;
+    let pose = pose_from(&req.pose, "pose")?;
     let slot = slot(&st, id)?;
     let s = slot.session.lock().await;
     let t = Instant::now();

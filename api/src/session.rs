@@ -107,3 +107,30 @@ pub fn kinematic(pose: &Pose, a: &Action) -> Pose {
     let step = dir.try_normalize().map_or(DVec3::ZERO, |d| d * WALK_SPEED);
     Pose::new(rotation, pose.position() + step).expect("a rotation times rotations is a rotation")
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// On open flat ground the world's physics is pure kinematics, so the
+    /// kinematic model must land on the same camera pose.
+    #[test]
+    fn kinematic_model_matches_the_world_on_flat_ground() {
+        let world = World::flat(64, 10);
+        let mut player = PlayerState { feet: [32.5, 11.0, 32.5], yaw_deg: 30.0, pitch_deg: 10.0 };
+        let mut pose = player.camera();
+        let actions = [
+            Action { forward: true, ..Action::default() },
+            Action { forward: true, yaw_deg: 12.0, ..Action::default() },
+            Action { left: true, pitch_deg: -5.0, ..Action::default() },
+            Action { back: true, right: true, yaw_deg: -40.0, ..Action::default() },
+        ];
+        for a in actions.iter().cycle().take(20) {
+            player = world::agent::step(&world, &player, a);
+            pose = kinematic(&pose, a);
+            let want = player.camera();
+            assert!((pose.position() - want.position()).length() < 1e-9, "{:?} vs {:?}", pose.position(), want.position());
+            assert!(pose.rotation().abs_diff_eq(want.rotation(), 1e-9), "{:?} vs {:?}", pose.rotation(), want.rotation());
+        }
+    }
+}

@@ -1,0 +1,280 @@
+//! The REST server as users meet it: the real `worldpack serve` process on
+//! loopback, real HTTP, a real store on disk, SIGKILL and restart.
+
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::Duration;
+
+use base64::Engine;
+use base64::engine::general_purpose::STANDARD as B64;
+use serde_json::{Value, json};
+
+struct Server {
+    child: Child,
+    url: String,
+}
+
+impl Server {
+    /// Starts `worldpack serve` on a free port with the store at `store`.
+    fn start(store: &Path, extra: &[&str]) -> Server {
+        let fixture = concat!(env!("CARGO_MANIFEST_DIR"), "/fixtures/small");
+        let mut args = vec!["serve", "--addr", "127.0.0.1:0", "--store", store.to_str().unwrap(), "--steps", "2"];
+        if !extra.contains(&"--memory-only") {
+            args.extend(["--model", fixture]);
+        }
+        args.extend(extra);
+        let mut child = Command::new(env!("CARGO_BIN_EXE_worldpack")).args(&args).stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().unwrap();
+        let mut line = String::new();
+        BufReader::new(child.stdout.take().unwrap()).read_line(&mut line).unwrap();
+        let url = line.split("listening on ").nth(1).and_then(|r| r.split_whitespace().next()).unwrap_or_else(|| panic!("no address in {line:?}")).to_string();
+        Server { child, url }
+    }
+
+    fn kill(mut self) {
+        let _ = self.child.kill(); // SIGKILL
+        let _ = self.child.wait();
+    }
+
+    fn post(&self, path: &str, body: &Value) -> (u16, Value) {
+        answer(ureq::post(&format!("{}{path}", self.url)).set("Content-Type", "application/json").send_string(&body.to_string()))
+    }
+
+    fn get(&self, path: &str) -> (u16, Value) {
+        answer(ureq::get(&format!("{}{path}", self.url)).call())
+    }
+
+    fn bytes(&self, path: &str) -> Vec<u8> {
+        let mut out = Vec::new();
+        ureq::get(&format!("{}{path}", self.url)).call().unwrap().into_reader().read_to_end(&mut out).unwrap();
+        out
+    }
+}
+
+impl Drop for Server {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+use std::io::Read;
+
+fn answer(r: Result<ureq::Response, ureq::Error>) -> (u16, Value) {
+    match r {
+        Ok(resp) => (resp.status(), resp.into_json().unwrap_or(Value::Null)),
+        Err(ureq::Error::Status(code, resp)) => (code, resp.into_json().unwrap_or(Value::Null)),
+        Err(e) => panic!("transport error: {e}"),
+    }
+}
+
+fn temp_store(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("worldpack-serve-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    dir.join("store.redb")
+}
+
+fn c2w(position: [f64; 3]) -> Value {
+    json!({ "c2w": { "rotation": [[1, 0, 0], [0, 1, 0], [0, 0, 1]], "position": position } })
+}
+
+#[test]
+fn a_synthetic_session_steps_observes_selects_and_reads_back() {
+    let store = temp_store("flow");
+    let s = Server::start(&store, &[]);
+    let (code, health) = s.get("/v1/health");
+    assert_eq!((code, health["provider"].as_str()), (200, Some("cpu")));
+
+    let (code, created) = s.post("/v1/sessions", &json!({ "synthetic": { "seed": 3 }, "policy": { "kind": "worldpack" } }));
+    assert_eq!(code, 201, "{created}");
+    let id = created["session"].as_u64().unwrap();
+    let mut last_pose = Value::Null;
+    for i in 1..=20u64 {
+        let turn = if i % 5 == 0 { 12.0 } else { 0.0 };
+        let (code, r) = s.post(&format!("/v1/sessions/{id}/step"), &json!({ "action": { "forward": true, "yaw_deg": turn } }));
+        assert_eq!(code, 200, "{r}");
+        assert_eq!(r["index"].as_u64(), Some(i));
+        let png = B64.decode(r["image_png"].as_str().unwrap()).unwrap();
+        assert_eq!(&png[1..4], b"PNG");
+        let plan = r["selection"]["plan"]["slots"].as_array().unwrap();
+        assert_eq!(plan.len(), 22, "worldpack packs 22 slots");
+        let used: Vec<u64> = plan.iter().filter_map(|s| s["frame"].as_u64()).collect();
+        assert_eq!(used.len() as u64, i.min(22), "every earlier frame fits until there are 22");
+        assert!(used.iter().all(|&f| f < i), "only earlier frames are context");
+        assert_ne!(r["pose"], last_pose, "the motion model moved the camera");
+        last_pose = r["pose"].clone();
+    }
+    // Observe a real frame (the first one again), then ask what a pose would use.
+    let image = B64.encode(s.bytes(&format!("/v1/sessions/{id}/frames/0/image")));
+    let (code, frame0) = s.get(&format!("/v1/sessions/{id}/frames/0"));
+    assert_eq!(code, 200);
+    let pose = json!({ "c2w": frame0["pose"] });
+    let (code, r) = s.post(&format!("/v1/sessions/{id}/observe"), &json!({ "image_png": image, "pose": pose }));
+    assert_eq!((code, r["index"].as_u64()), (200, Some(21)), "{r}");
+    let (code, r) = s.post(&format!("/v1/sessions/{id}/select"), &json!({ "pose": pose }));
+    assert_eq!(code, 200, "{r}");
+    let best = &r["plan"]["slots"][0];
+    assert!(best["frame"] == 0 || best["frame"] == 21, "the frames taken from this very pose rank first: {best}");
+    assert!((best["overlap"].as_f64().unwrap() - 1.0).abs() < 1e-9);
+
+    let (code, r) = s.get(&format!("/v1/sessions/{id}"));
+    assert_eq!((code, r["frames"].as_u64()), (200, Some(22)));
+    let (code, r) = s.get(&format!("/v1/sessions/{id}/frames/7"));
+    assert_eq!((code, r["source"].as_str()), (200, Some("generated")));
+    let (code, _) = answer(ureq::delete(&format!("{}/v1/sessions/{id}", s.url)).call());
+    assert_eq!(code, 204);
+    assert_eq!(s.get(&format!("/v1/sessions/{id}")).0, 404);
+    let text = ureq::get(&format!("{}/metrics", s.url)).call().unwrap().into_string().unwrap();
+    assert!(text.contains("worldpack_steps_total 20") && text.contains("worldpack_observes_total 1"), "{text}");
+}
+
+#[test]
+fn without_a_model_the_server_is_a_memory_store() {
+    let store = temp_store("memory");
+    let with_model = Server::start(&temp_store("memory-src"), &[]);
+    let (_, created) = with_model.post("/v1/sessions", &json!({ "synthetic": { "seed": 5 } }));
+    let png = B64.encode(with_model.bytes(&format!("/v1/sessions/{}/frames/0/image", created["session"])));
+    drop(with_model);
+
+    let s = Server::start(&store, &["--memory-only"]);
+    let intrinsics = json!({ "hfov_deg": 70, "width": 64, "height": 64 });
+    let (code, r) = s.post("/v1/sessions", &json!({ "frames": [{ "image_png": png, "pose": c2w([0.0, 0.0, 0.0]) }], "intrinsics": intrinsics }));
+    assert_eq!(code, 201, "{r}");
+    let id = r["session"].as_u64().unwrap();
+    for x in 1..5 {
+        let (code, r) = s.post(&format!("/v1/sessions/{id}/observe"), &json!({ "image_png": png, "pose": c2w([x as f64 * 5.0, 0.0, 0.0]) }));
+        assert_eq!((code, r["has_latent"].as_bool()), (200, Some(false)), "{r}");
+    }
+    let (code, r) = s.post(&format!("/v1/sessions/{id}/select"), &json!({ "pose": c2w([20.0, 0.0, 1.0]) }));
+    assert_eq!(code, 200);
+    assert_eq!(r["plan"]["slots"][0]["frame"], 4, "the nearest view ranks first: {r}");
+    let (code, r) = s.post(&format!("/v1/sessions/{id}/step"), &json!({ "action": { "forward": true } }));
+    assert_eq!((code, r["error"]["field"].as_str()), (409, Some("model")));
+}
+
+#[test]
+fn bad_requests_get_4xx_json_naming_the_field() {
+    let s = Server::start(&temp_store("bad"), &[]);
+    let (_, created) = s.post("/v1/sessions", &json!({ "synthetic": { "seed": 3 } }));
+    let id = created["session"].as_u64().unwrap();
+    let step = format!("/v1/sessions/{id}/step");
+    let small_png = {
+        // A 32x32 frame: the session camera says 64x64.
+        let mut out = Vec::new();
+        let mut enc = png::Encoder::new(&mut out, 32, 32);
+        enc.set_color(png::ColorType::Rgb);
+        enc.write_header().unwrap().write_image_data(&[90u8; 32 * 32 * 3]).unwrap();
+        B64.encode(out)
+    };
+    let cases: Vec<(&str, String, Value, u16, &str)> = vec![
+        ("unknown session", "/v1/sessions/999/step".into(), json!({ "action": {} }), 404, "session"),
+        ("bad session id", "/v1/sessions/abc/step".into(), json!({ "action": {} }), 400, "session"),
+        ("turn too large", step.clone(), json!({ "action": { "yaw_deg": 1000 } }), 400, "action.yaw_deg"),
+        ("key not a bool", step.clone(), json!({ "action": { "jump": "yes" } }), 400, "action.jump"),
+        ("no action", step.clone(), json!({}), 400, "body"),
+        ("unknown field", step.clone(), json!({ "action": {}, "speed": 2 }), 400, "speed"),
+        ("far-away pose", step.clone(), json!({ "action": {}, "pose": c2w([0.0, 1e308, 0.0]) }), 400, "pose.position"),
+        ("not a rotation", step.clone(), json!({ "action": {}, "pose": { "c2w": { "rotation": [[2, 0, 0], [0, 1, 0], [0, 0, 1]], "position": [0, 0, 0] } } }), 400, "pose.rotation"),
+        ("zero steps", step.clone(), json!({ "action": {}, "steps": 0 }), 400, "steps"),
+        ("unknown policy", "/v1/sessions".into(), json!({ "synthetic": { "seed": 1 }, "policy": { "kind": "magic" } }), 400, "policy.kind"),
+        ("both starts", "/v1/sessions".into(), json!({ "synthetic": { "seed": 1 }, "frames": [] }), 400, "frames"),
+        ("no intrinsics", "/v1/sessions".into(), json!({ "frames": [{ "image_png": small_png, "pose": c2w([0.0; 3]) }] }), 400, "intrinsics"),
+        ("wrong image size", "/v1/sessions".into(),
+            json!({ "frames": [{ "image_png": small_png, "pose": c2w([0.0; 3]) }], "intrinsics": { "hfov_deg": 70, "width": 64, "height": 64 } }), 400, "frames[0].image_png"),
+        ("not a png", format!("/v1/sessions/{id}/observe"), json!({ "image_png": "aGVsbG8=", "pose": c2w([0.0; 3]) }), 400, "image_png"),
+        ("bad fov", "/v1/sessions".into(), json!({ "frames": [{ "image_png": small_png, "pose": c2w([0.0; 3]) }], "intrinsics": { "hfov_deg": 200, "width": 32, "height": 32 } }), 400, "intrinsics.hfov_deg"),
+    ];
+    for (what, path, body, status, field) in cases {
+        let (code, r) = s.post(&path, &body);
+        assert_eq!(code, status, "{what}: {r}");
+        assert_eq!(r["error"]["field"].as_str(), Some(field), "{what}: {r}");
+        assert!(!r["error"]["message"].as_str().unwrap().is_empty(), "{what}");
+    }
+    // JSON has no NaN; an overflowing number is the closest a client can send.
+    let (code, r) = answer(ureq::post(&format!("{}{step}", s.url)).set("Content-Type", "application/json")
+        .send_string(r#"{"action": {}, "pose": {"c2w": {"rotation": [[1,0,0],[0,1,0],[0,0,1]], "position": [0, 1e999, 0]}}}"#));
+    assert_eq!((code, r["error"]["field"].as_str()), (400, Some("pose.c2w.position[1]")), "{r}");
+    let (code, r) = answer(ureq::post(&format!("{}{step}", s.url)).set("Content-Type", "text/plain").send_string("{}"));
+    assert_eq!((code, r["error"]["field"].as_str()), (415, Some("content-type")));
+    let huge = "x".repeat(17 << 20);
+    let (code, r) = answer(ureq::post(&format!("{}{step}", s.url)).set("Content-Type", "application/json").send_string(&huge));
+    assert_eq!((code, r["error"]["field"].as_str()), (413, Some("body")), "{r}");
+    let (code, r) = s.get("/v1/nowhere");
+    assert_eq!((code, r["error"]["field"].as_str()), (404, Some("path")));
+    // The session is untouched by all of it.
+    let (_, r) = s.get(&format!("/v1/sessions/{id}"));
+    assert_eq!(r["frames"], 1);
+}
+
+#[test]
+fn sixteen_sessions_step_concurrently() {
+    let s = Server::start(&temp_store("concurrent"), &[]);
+    let ids: Vec<u64> = (0..16).map(|i| s.post("/v1/sessions", &json!({ "synthetic": { "seed": i % 4 } })).1["session"].as_u64().unwrap()).collect();
+    std::thread::scope(|scope| {
+        for &id in &ids {
+            let s = &s;
+            scope.spawn(move || {
+                for i in 1..=3u64 {
+                    let (code, r) = s.post(&format!("/v1/sessions/{id}/step"), &json!({ "action": { "forward": true } }));
+                    assert_eq!(code, 200, "session {id}: {r}");
+                    assert_eq!(r["index"].as_u64(), Some(i), "steps within a session are ordered");
+                }
+            });
+        }
+    });
+    for id in ids {
+        assert_eq!(s.get(&format!("/v1/sessions/{id}")).1["frames"], 4);
+    }
+}
+
+#[test]
+fn acknowledged_frames_survive_sigkill() {
+    let store = temp_store("crash");
+    let png = {
+        let s = Server::start(&temp_store("crash-src"), &[]);
+        let (_, c) = s.post("/v1/sessions", &json!({ "synthetic": { "seed": 2 } }));
+        B64.encode(s.bytes(&format!("/v1/sessions/{}/frames/0/image", c["session"])))
+    };
+    let intrinsics = json!({ "hfov_deg": 70, "width": 64, "height": 64 });
+    let mut acknowledged: Vec<(u64, u64, f64)> = Vec::new(); // session, index, x
+    for round in 0..6u64 {
+        let s = Server::start(&store, &["--memory-only"]);
+        // Everything acknowledged before is there, bit for bit.
+        for &(id, index, x) in &acknowledged {
+            let (code, r) = s.get(&format!("/v1/sessions/{id}/frames/{index}"));
+            assert_eq!(code, 200, "round {round}: frame {id}/{index} lost: {r}");
+            assert_eq!(r["pose"]["position"][0].as_f64(), Some(x), "round {round}: frame {id}/{index}");
+        }
+        let (_, c) = s.post("/v1/sessions", &json!({ "frames": [{ "image_png": png, "pose": c2w([0.0; 3]) }], "intrinsics": intrinsics }));
+        let id = c["session"].as_u64().unwrap();
+        acknowledged.push((id, 0, 0.0));
+        let url = s.url.clone();
+        let png = png.clone();
+        let writer = std::thread::spawn(move || {
+            let mut done = Vec::new();
+            for k in 1..10_000u64 {
+                let x = round as f64 * 1000.0 + k as f64;
+                let body = json!({ "image_png": png.clone(), "pose": c2w([x, 0.0, 0.0]) }).to_string();
+                match ureq::post(&format!("{url}/v1/sessions/{id}/observe")).set("Content-Type", "application/json").send_string(&body) {
+                    Ok(r) => {
+                        let v: Value = r.into_json().unwrap();
+                        done.push((id, v["index"].as_u64().unwrap(), x));
+                    }
+                    Err(_) => break, // the server died mid-request: not acknowledged
+                }
+            }
+            done
+        });
+        std::thread::sleep(Duration::from_millis(300 + 97 * round));
+        s.kill();
+        let done = writer.join().unwrap();
+        assert!(!done.is_empty(), "round {round}: some writes were acknowledged before the kill");
+        acknowledged.extend(done);
+    }
+    let s = Server::start(&store, &["--memory-only"]);
+    for &(id, index, x) in &acknowledged {
+        let (code, r) = s.get(&format!("/v1/sessions/{id}/frames/{index}"));
+        assert_eq!((code, r["pose"]["position"][0].as_f64()), (200, Some(x)), "frame {id}/{index}");
+    }
+    let _ = std::fs::remove_dir_all(store.parent().unwrap());
+}
