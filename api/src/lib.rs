@@ -2,6 +2,7 @@
 //! that generates the next frame from a packed memory context, and a durable
 //! store underneath. See docs/api.md.
 
+pub mod engine;
 pub mod error;
 mod routes;
 pub mod session;
@@ -11,16 +12,16 @@ use std::collections::HashMap;
 use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicU64, AtomicUsize};
-use std::sync::{Arc, Mutex, RwLock};
+use std::sync::{Arc, RwLock};
 use std::time::Duration;
 
 use axum::Router;
 use axum::extract::DefaultBodyLimit;
 use model::{Method, Model};
 use tokio::sync::Semaphore;
-use world::World;
 
 pub use error::ApiError;
+use engine::Engine;
 use session::Session;
 use store::Store;
 
@@ -80,23 +81,10 @@ pub(crate) struct Metrics {
 
 pub(crate) struct AppState {
     pub config: Config,
-    pub store: Store,
-    pub model: Option<Model>,
+    pub engine: Engine,
     pub sessions: RwLock<HashMap<u64, Arc<Slot>>>,
-    pub worlds: Mutex<HashMap<u64, Arc<World>>>,
     pub inflight: Semaphore,
     pub metrics: Metrics,
-}
-
-impl AppState {
-    pub fn world(&self, seed: u64) -> Arc<World> {
-        if let Some(w) = self.worlds.lock().unwrap_or_else(|p| p.into_inner()).get(&seed) {
-            return w.clone();
-        }
-        let w = Arc::new(World::generate(seed));
-        self.worlds.lock().unwrap_or_else(|p| p.into_inner()).insert(seed, w.clone());
-        w
-    }
 }
 
 /// A bound, not yet running server: its address is known (port 0 resolved).
@@ -117,17 +105,15 @@ impl Server {
         session::policy_of(&config.policy).map_err(|e| format!("--policy: {}", e.message))?;
         let state = Arc::new(AppState {
             inflight: Semaphore::new(config.max_inflight),
-            store,
-            model,
+            engine: Engine::new(store, model),
             sessions: RwLock::new(HashMap::new()),
-            worlds: Mutex::new(HashMap::new()),
             metrics: Metrics::default(),
             config: config.clone(),
         });
         let mut restored = 0;
-        for (id, record) in state.store.sessions().map_err(|e| e.to_string())? {
-            let frames = state.store.frames(id).map_err(|e| e.to_string())?;
-            let world = record.world_seed.map(|s| state.world(s));
+        for (id, record) in state.engine.store.sessions().map_err(|e| e.to_string())? {
+            let frames = state.engine.store.frames(id).map_err(|e| e.to_string())?;
+            let world = record.world_seed.map(|s| state.engine.world(s));
             let s = Session::restore(id, record, frames, world).map_err(|e| format!("restoring session {id}: {}", e.message))?;
             restored += 1;
             let slot = Slot { session: Arc::new(tokio::sync::Mutex::new(s)), waiting: AtomicUsize::new(0) };
@@ -141,7 +127,7 @@ impl Server {
         let description = format!(
             "listening on http://{addr} (model: {}, provider: {}, store: {}, {restored} sessions restored)",
             config.model.as_ref().map_or("none (memory only)".into(), |p| p.display().to_string()),
-            state.model.as_ref().map_or("-", |m| m.provider()),
+            state.engine.model.as_ref().map_or("-", |m| m.provider()),
             config.store.display()
         );
         Ok(Server { listener, router, description })

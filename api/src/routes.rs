@@ -15,18 +15,17 @@ use axum::{Json, Router};
 use base64::Engine;
 use base64::engine::general_purpose::STANDARD as B64;
 use memory::input::{IntrinsicsInput, PoseInput};
-use memory::{ContextPlan, Intrinsics, Policy, Pose};
-use model::generate::{Conditioning, frame_to_tensor, tensor_to_frame};
-use model::{Sampler, Tensor};
+use memory::{ContextPlan, Policy, Pose};
+use model::Sampler;
 use serde::Deserialize;
 use serde::de::DeserializeOwned;
 use serde_json::{Value, json};
-use world::agent::{Action, PlayerState};
-use world::render::{RenderSettings, render};
+use world::agent::Action;
 
 use crate::error::ApiError;
-use crate::session::{Session, player_to, policy_of};
-use crate::store::{FrameMeta, FrameRecord, SessionRecord};
+use crate::session::{Session, policy_of};
+use crate::engine::{encode_png, meta};
+use crate::store::{FrameRecord, SessionRecord};
 use crate::{AppState, Slot};
 
 type Res<T> = Result<T, ApiError>;
@@ -128,26 +127,6 @@ fn decode_png(field: &str, b64: &str) -> Res<(Vec<u8>, u32, u32)> {
     Ok((rgb, info.width, info.height))
 }
 
-pub fn encode_png(rgb: &[u8], w: u32, h: u32) -> Vec<u8> {
-    let mut out = Vec::new();
-    let mut enc = png::Encoder::new(&mut out, w, h);
-    enc.set_color(png::ColorType::Rgb);
-    enc.set_depth(png::BitDepth::Eight);
-    enc.write_header().and_then(|mut w| w.write_image_data(rgb)).expect("encoding a PNG into memory");
-    out
-}
-
-/// The model's scaled latent of an RGB frame (empty without a model).
-fn latent_of(st: &AppState, rgb: &[u8], w: u32, h: u32, k: &Intrinsics, field: &str) -> Res<Vec<f32>> {
-    let Some(m) = &st.model else { return Ok(Vec::new()) };
-    let img = &m.manifest().image;
-    let (t, _) = frame_to_tensor(rgb, w, h, k, img.width as u32, img.height as u32).map_err(|e| match e {
-        model::ModelError::Input { message, .. } => ApiError::bad(field, message),
-        other => ApiError::internal(other),
-    })?;
-    Ok(m.encode(&t)?.data)
-}
-
 /// Positions are capped at ±1e9 world units: beyond that the f64 geometry
 /// has no centimetres left and any answer would be noise.
 const MAX_COORDINATE: f64 = 1e9;
@@ -172,8 +151,8 @@ fn validate_action(a: &Action) -> Res<()> {
 async fn health(State(st): St) -> Json<Value> {
     Json(json!({
         "status": "ok",
-        "model": st.model.as_ref().map(|m| m.manifest().name.clone()),
-        "provider": st.model.as_ref().map(|m| m.provider()),
+        "model": st.engine.model.as_ref().map(|m| m.manifest().name.clone()),
+        "provider": st.engine.model.as_ref().map(|m| m.provider()),
         "sessions": st.sessions.read().unwrap().len(),
     }))
 }
@@ -233,71 +212,37 @@ async fn create(State(st): St, headers: HeaderMap, body: Result<Bytes, BytesReje
     let _permit = permit(&st)?;
     let st2 = st.clone();
     let (id, frames) = blocking(move || {
-        let st = st2;
-        let (record, firsts, world) = match (req.synthetic, req.frames) {
+        let e = &st2.engine;
+        let session = match (req.synthetic, req.frames) {
             (Some(_), Some(_)) => return Err(ApiError::bad("frames", "give either synthetic or frames, not both")),
             (None, None) => return Err(ApiError::bad("frames", "give initial frames (with intrinsics) or a synthetic world seed")),
             (Some(s), None) => {
                 if req.intrinsics.is_some() {
                     return Err(ApiError::bad("intrinsics", "a synthetic session uses the model's camera"));
                 }
-                let k = match &st.model {
-                    Some(m) => m.manifest().intrinsics,
-                    None => world::suite::default_intrinsics(64, 64)?,
-                };
-                let world = st.world(s.seed);
-                let cell = world::agent::spawn_point(&world, s.biome)
-                    .ok_or_else(|| ApiError::bad("synthetic.biome", "this world has no standable spawn in that biome"))?;
-                let player = PlayerState::at_cell(cell, 0.0);
-                let frame = render(&world, &player.camera(), &k, &RenderSettings::default());
-                let latent = latent_of(&st, &frame.rgb, k.width, k.height, &k, "synthetic")?;
-                let meta = meta(&player.camera(), 0, "observed", None, Some(&player));
-                let rec = SessionRecord { policy: policy_spec, intrinsics: k, world_seed: Some(s.seed) };
-                (rec, vec![FrameRecord { meta, latent, png: encode_png(&frame.rgb, k.width, k.height) }], Some(world))
+                e.create_synthetic(policy_spec, s.seed, s.biome)?
             }
             (None, Some(frames)) => {
                 let k = req.intrinsics.ok_or_else(|| ApiError::bad("intrinsics", "required with frames"))?.resolve().map_err(|e| e.within("intrinsics"))?;
-                if frames.is_empty() {
-                    return Err(ApiError::bad("frames", "give at least one frame"));
-                }
-                let mut out = Vec::new();
+                let mut records = Vec::new();
                 for (i, f) in frames.iter().enumerate() {
                     let at = format!("frames[{i}]");
                     let pose = pose_from(&f.pose, &format!("{at}.pose"))?;
                     let (rgb, w, h) = decode_png(&format!("{at}.image_png"), &f.image_png)?;
-                    let latent = latent_of(&st, &rgb, w, h, &k, &format!("{at}.image_png"))?;
-                    out.push(FrameRecord { meta: meta(&pose, i as u64, "observed", None, None), latent, png: encode_png(&rgb, w, h) });
+                    let latent = e.latent_of(&rgb, w, h, &k, &format!("{at}.image_png"))?;
+                    records.push(FrameRecord { meta: meta(&pose, i as u64, "observed", None, None), latent, png: encode_png(&rgb, w, h) });
                 }
-                (SessionRecord { policy: policy_spec, intrinsics: k, world_seed: None }, out, None)
+                e.create(SessionRecord { policy: policy_spec, intrinsics: k, world_seed: None }, records, None)?
             }
         };
-        let mut session = Session::restore(0, record.clone(), Vec::new(), world)?;
-        let id = st.store.create_session(&record, &firsts[0])?;
-        for (i, f) in firsts.iter().enumerate().skip(1) {
-            st.store.put_frame(id, i as u64, f)?;
-        }
-        session.id = id;
-        for f in firsts {
-            session.push(f.meta.time, crate::session::pose_of(&f.meta)?, f.latent, f.meta.player.map(crate::session::player_from))?;
-        }
-        let n = session.frames.len();
+        let (id, n) = (session.id, session.frames.len());
         let slot = Slot { session: Arc::new(tokio::sync::Mutex::new(session)), waiting: AtomicUsize::new(0) };
-        st.sessions.write().unwrap().insert(id, Arc::new(slot));
+        st2.sessions.write().unwrap().insert(id, Arc::new(slot));
         Ok((id, n))
     })
     .await?;
     st.metrics.sessions_created.fetch_add(1, Ordering::Relaxed);
     Ok((StatusCode::CREATED, Json(json!({ "session": id, "frames": frames }))))
-}
-
-fn meta(pose: &Pose, time: u64, source: &str, action: Option<&Action>, player: Option<&PlayerState>) -> FrameMeta {
-    FrameMeta {
-        c2w: pose.matrix_rows(),
-        time,
-        source: source.into(),
-        action: action.map(|a| a.to_vector().to_vec()),
-        player: player.map(player_to),
-    }
 }
 
 async fn describe(State(st): St, id: Result<Path<u64>, PathRejection>) -> Res<Json<Value>> {
@@ -319,7 +264,7 @@ async fn delete(State(st): St, id: Result<Path<u64>, PathRejection>) -> Res<Stat
     let slot = slot(&st, id)?;
     let _guard = lock(&st, &slot).await?;
     let st2 = st.clone();
-    blocking(move || Ok(st2.store.delete_session(id)?)).await?;
+    blocking(move || Ok(st2.engine.store.delete_session(id)?)).await?;
     st.sessions.write().unwrap().remove(&id);
     Ok(StatusCode::NO_CONTENT)
 }
@@ -341,7 +286,7 @@ async fn step(State(st): St, id: Result<Path<u64>, PathRejection>, headers: Head
     let id = session_id(id)?;
     let req: StepRequest = parse(&headers, body)?;
     validate_action(&req.action)?;
-    let Some(m) = &st.model else {
+    let Some(m) = &st.engine.model else {
         return Err(ApiError::new(StatusCode::CONFLICT, "model", "this server runs without a model (memory only): use observe"));
     };
     let steps = req.steps.unwrap_or(st.config.steps);
@@ -351,47 +296,14 @@ async fn step(State(st): St, id: Result<Path<u64>, PathRejection>, headers: Head
     let _permit = permit(&st)?;
     let st2 = st.clone();
     let out = blocking(move || {
-        let st = st2;
-        let m = st.model.as_ref().expect("checked above");
-        let t0 = Instant::now();
-        let (pose, player) = match &req.pose {
-            Some(p) => (pose_from(p, "pose")?, None),
-            None => s.motion(&req.action)?,
-        };
-        let time = s.next_time();
-        let frustum = s.frustum(pose)?;
-        let (plan, stats) = s.memory.select(&s.policy, &frustum, s.last_plan.as_ref());
-        let select_ms = t0.elapsed().as_secs_f64() * 1e3;
-        let layout = layout_for(m, &s.policy)?;
-        let spec = m.manifest().layout(&layout).expect("layout_for returns a layout of the manifest");
-        let latent_spec = &m.manifest().autoencoder.latent;
-        let packed = model::pack::pack(spec, latent_spec, &plan, time, &pose, |fid| {
-            s.frames.get(fid as usize).map(|f| model::pack::ContextFrame { latent: &f.latent, time: f.time, pose: &f.pose })
-        })?;
-        let action = Tensor::new(vec![1, 7], req.action.to_vector().to_vec());
-        let rel_time = Tensor::new(vec![1], vec![packed.rel_time]);
-        let t1 = Instant::now();
-        let cond = Conditioning { context: &packed.tensors, action: &action, rel_time: &rel_time };
-        let latent = m.sample(&layout, &cond, &sampler, req.seed.unwrap_or(time))?;
-        let sample_ms = t1.elapsed().as_secs_f64() * 1e3;
-        let t2 = Instant::now();
-        let image = m.decode(&latent)?;
-        let rgb = tensor_to_frame(&image, 0)?;
-        let img = &m.manifest().image;
-        let png = encode_png(&rgb, img.width as u32, img.height as u32);
-        let decode_ms = t2.elapsed().as_secs_f64() * 1e3;
-        let t3 = Instant::now();
-        let index = s.frames.len() as u64;
-        let record = FrameRecord { meta: meta(&pose, time, "generated", Some(&req.action), player.as_ref()), latent: latent.data, png };
-        st.store.put_frame(s.id, index, &record)?;
-        let store_ms = t3.elapsed().as_secs_f64() * 1e3;
-        s.push(time, pose, record.latent, player)?;
-        let selection = json!({ "plan": plan_json(&s.policy, &plan), "layout": layout, "exact_evaluations": stats.overlap_evaluations });
-        s.last_plan = Some(plan);
+        let pose = req.pose.as_ref().map(|p| pose_from(p, "pose")).transpose()?;
+        let o = st2.engine.step(&mut s, &req.action, pose, &sampler, req.seed)?;
+        let [select, sample, decode, store] = o.timings_ms;
         Ok(json!({
-            "session": s.id, "index": index, "time": time, "pose": pose_json(&pose), "source": "generated",
-            "image_png": B64.encode(&record.png), "selection": selection, "steps": steps, "provider": m.provider(),
-            "timings_ms": { "select": select_ms, "sample": sample_ms, "decode": decode_ms, "store": store_ms },
+            "session": s.id, "index": o.index, "time": o.time, "pose": pose_json(&o.pose), "source": "generated",
+            "image_png": B64.encode(&o.png), "steps": sampler.len(), "provider": st2.engine.model.as_ref().map(|m| m.provider()),
+            "selection": { "plan": plan_json(&s.policy, &o.plan), "layout": o.layout, "exact_evaluations": o.exact_evaluations },
+            "timings_ms": { "select": select, "sample": sample, "decode": decode, "store": store },
         }))
     })
     .await?;
@@ -401,18 +313,6 @@ async fn step(State(st): St, id: Result<Path<u64>, PathRejection>, headers: Head
     let mut out = out;
     out["timings_ms"]["total"] = json!(micros as f64 / 1e3);
     Ok(Json(out))
-}
-
-/// The denoiser layout whose slots are the policy's packing, tier by tier.
-fn layout_for(m: &model::Model, policy: &Policy) -> Res<String> {
-    let want: Vec<(u32, usize)> = policy.packing.tiers().iter().map(|t| (t.rate, t.slots)).collect();
-    m.manifest()
-        .denoiser
-        .layouts
-        .iter()
-        .find(|l| l.slots.iter().map(|s| (s.rate, s.count)).collect::<Vec<_>>() == want)
-        .map(|l| l.name.clone())
-        .ok_or_else(|| ApiError::bad("policy", format!("the model has no context layout with slots {want:?} (rate, count); its layouts fit baseline (4x1) and worldpack (2x1, 4x4, 16x16) packings")))
 }
 
 #[derive(Deserialize)]
@@ -437,16 +337,8 @@ async fn observe(State(st): St, id: Result<Path<u64>, PathRejection>, headers: H
     let _permit = permit(&st)?;
     let st2 = st.clone();
     let out = blocking(move || {
-        let st = st2;
-        let k = *s.intrinsics();
-        let latent = latent_of(&st, &rgb, w, h, &k, "image_png")?;
-        s.frustum(pose)?;
-        let time = s.next_time();
-        let index = s.frames.len() as u64;
-        let record = FrameRecord { meta: meta(&pose, time, "observed", req.action.as_ref(), None), latent, png: encode_png(&rgb, w, h) };
-        st.store.put_frame(s.id, index, &record)?;
-        s.push(time, pose, record.latent, None)?;
-        Ok(json!({ "session": s.id, "index": index, "time": time, "has_latent": st.model.is_some() }))
+        let (index, time) = st2.engine.observe(&mut s, &rgb, w, h, pose, req.action.as_ref())?;
+        Ok(json!({ "session": s.id, "index": index, "time": time, "has_latent": st2.engine.model.is_some() }))
     })
     .await?;
     st.metrics.observes.fetch_add(1, Ordering::Relaxed);
@@ -483,7 +375,7 @@ async fn frame(State(st): St, p: Result<Path<(u64, u64)>, PathRejection>) -> Res
     let (id, index) = frame_ids(p)?;
     slot(&st, id)?;
     let st2 = st.clone();
-    let f = blocking(move || st2.store.frame(id, index).map_err(ApiError::from)).await?;
+    let f = blocking(move || st2.engine.store.frame(id, index).map_err(ApiError::from)).await?;
     let f = f.ok_or_else(|| ApiError::not_found("index", format!("session {id} has no frame {index}")))?;
     let pose = crate::session::pose_of(&f.meta)?;
     Ok(Json(json!({
@@ -496,7 +388,7 @@ async fn frame_image(State(st): St, p: Result<Path<(u64, u64)>, PathRejection>) 
     let (id, index) = frame_ids(p)?;
     slot(&st, id)?;
     let st2 = st.clone();
-    let f = blocking(move || st2.store.frame(id, index).map_err(ApiError::from)).await?;
+    let f = blocking(move || st2.engine.store.frame(id, index).map_err(ApiError::from)).await?;
     let f = f.ok_or_else(|| ApiError::not_found("index", format!("session {id} has no frame {index}")))?;
     Ok(([(header::CONTENT_TYPE, "image/png")], f.png).into_response())
 }

@@ -1,0 +1,194 @@
+//! What a request does, without HTTP: create a session, step it through the
+//! model, observe a frame. The server's handlers and `worldpack bench serve`
+//! call the same functions, so the benchmark's "library call" is the step
+//! the server makes.
+
+use std::collections::HashMap;
+use std::sync::{Arc, Mutex};
+use std::time::Instant;
+
+use memory::{ContextPlan, Intrinsics, Policy, Pose};
+use model::generate::{Conditioning, frame_to_tensor, tensor_to_frame};
+use model::{Model, Sampler, Tensor};
+use world::World;
+use world::agent::{Action, PlayerState};
+use world::render::{RenderSettings, render};
+
+use crate::error::ApiError;
+use crate::session::{Session, player_to};
+use crate::store::{FrameMeta, FrameRecord, SessionRecord, Store};
+
+pub struct Engine {
+    pub store: Store,
+    pub model: Option<Model>,
+    worlds: Mutex<HashMap<u64, Arc<World>>>,
+}
+
+/// What one step produced.
+pub struct StepOutcome {
+    pub index: u64,
+    pub time: u64,
+    pub pose: Pose,
+    pub png: Vec<u8>,
+    pub plan: ContextPlan,
+    pub layout: String,
+    pub exact_evaluations: usize,
+    pub timings_ms: [f64; 4], // select, sample, decode, store
+}
+
+impl Engine {
+    pub fn new(store: Store, model: Option<Model>) -> Engine {
+        Engine { store, model, worlds: Mutex::new(HashMap::new()) }
+    }
+
+    /// The synthetic world of `seed`, generated once and shared.
+    pub fn world(&self, seed: u64) -> Arc<World> {
+        if let Some(w) = self.worlds.lock().unwrap_or_else(|p| p.into_inner()).get(&seed) {
+            return w.clone();
+        }
+        let w = Arc::new(World::generate(seed));
+        self.worlds.lock().unwrap_or_else(|p| p.into_inner()).insert(seed, w.clone());
+        w
+    }
+
+    /// The camera of synthetic sessions: the model's, else the world's default at 64x64.
+    pub fn synthetic_camera(&self) -> Result<Intrinsics, ApiError> {
+        match &self.model {
+            Some(m) => Ok(m.manifest().intrinsics),
+            None => Ok(world::suite::default_intrinsics(64, 64)?),
+        }
+    }
+
+    /// The model's scaled latent of an RGB frame (empty without a model).
+    pub fn latent_of(&self, rgb: &[u8], w: u32, h: u32, k: &Intrinsics, field: &str) -> Result<Vec<f32>, ApiError> {
+        let Some(m) = &self.model else { return Ok(Vec::new()) };
+        let img = &m.manifest().image;
+        let (t, _) = frame_to_tensor(rgb, w, h, k, img.width as u32, img.height as u32).map_err(|e| match e {
+            model::ModelError::Input { message, .. } => ApiError::bad(field, message),
+            other => ApiError::internal(other),
+        })?;
+        Ok(m.encode(&t)?.data)
+    }
+
+    /// A new session in the synthetic world: spawn (in `biome` if given), render, store.
+    pub fn create_synthetic(&self, policy: serde_json::Value, seed: u64, biome: Option<world::Biome>) -> Result<Session, ApiError> {
+        let k = self.synthetic_camera()?;
+        let world = self.world(seed);
+        let cell = world::agent::spawn_point(&world, biome)
+            .ok_or_else(|| ApiError::bad("synthetic.biome", "this world has no standable spawn in that biome"))?;
+        let player = PlayerState::at_cell(cell, 0.0);
+        let frame = render(&world, &player.camera(), &k, &RenderSettings::default());
+        let latent = self.latent_of(&frame.rgb, k.width, k.height, &k, "synthetic")?;
+        let first = FrameRecord { meta: meta(&player.camera(), 0, "observed", None, Some(&player)), latent, png: encode_png(&frame.rgb, k.width, k.height) };
+        self.create(SessionRecord { policy, intrinsics: k, world_seed: Some(seed) }, vec![first], Some(world))
+    }
+
+    /// Stores a new session with its first frames and returns it, indexed.
+    pub fn create(&self, record: SessionRecord, frames: Vec<FrameRecord>, world: Option<Arc<World>>) -> Result<Session, ApiError> {
+        let first = frames.first().ok_or_else(|| ApiError::bad("frames", "give at least one frame"))?;
+        let id = self.store.create_session(&record, first)?;
+        for (i, f) in frames.iter().enumerate().skip(1) {
+            self.store.put_frame(id, i as u64, f)?;
+        }
+        Session::restore(id, record, frames, world)
+    }
+
+    /// Generates the next frame of `s` and commits it before returning.
+    pub fn step(&self, s: &mut Session, action: &Action, pose: Option<Pose>, sampler: &Sampler, seed: Option<u64>) -> Result<StepOutcome, ApiError> {
+        let m = self.model.as_ref().ok_or_else(|| {
+            ApiError::new(axum::http::StatusCode::CONFLICT, "model", "this server runs without a model (memory only): use observe")
+        })?;
+        let t0 = Instant::now();
+        let (pose, player) = match pose {
+            Some(p) => (p, None),
+            None => s.motion(action)?,
+        };
+        let time = s.next_time();
+        let frustum = s.frustum(pose)?;
+        let (plan, stats) = s.memory.select(&s.policy, &frustum, s.last_plan.as_ref());
+        let select_ms = ms(t0);
+        let layout = layout_for(m, &s.policy)?;
+        let spec = m.manifest().layout(&layout).expect("layout_for returns a layout of the manifest");
+        let packed = model::pack::pack(spec, &m.manifest().autoencoder.latent, &plan, time, &pose, |fid| {
+            s.frames.get(fid as usize).map(|f| model::pack::ContextFrame { latent: &f.latent, time: f.time, pose: &f.pose })
+        })?;
+        let action_t = Tensor::new(vec![1, 7], action.to_vector().to_vec());
+        let rel_time = Tensor::new(vec![1], vec![packed.rel_time]);
+        let t1 = Instant::now();
+        let cond = Conditioning { context: &packed.tensors, action: &action_t, rel_time: &rel_time };
+        let latent = m.sample(&layout, &cond, sampler, seed.unwrap_or(time))?;
+        let sample_ms = ms(t1);
+        let t2 = Instant::now();
+        let rgb = tensor_to_frame(&m.decode(&latent)?, 0)?;
+        let img = &m.manifest().image;
+        let png = encode_png(&rgb, img.width as u32, img.height as u32);
+        let decode_ms = ms(t2);
+        let t3 = Instant::now();
+        let index = s.frames.len() as u64;
+        let record = FrameRecord { meta: meta(&pose, time, "generated", Some(action), player.as_ref()), latent: latent.data, png };
+        self.store.put_frame(s.id, index, &record)?;
+        let store_ms = ms(t3);
+        s.push(time, pose, record.latent, player)?;
+        s.last_plan = Some(plan.clone());
+        Ok(StepOutcome {
+            index,
+            time,
+            pose,
+            png: record.png,
+            plan,
+            layout,
+            exact_evaluations: stats.overlap_evaluations,
+            timings_ms: [select_ms, sample_ms, decode_ms, store_ms],
+        })
+    }
+
+    /// Appends a caller's frame (encoded when a model is loaded) and commits it.
+    pub fn observe(&self, s: &mut Session, rgb: &[u8], w: u32, h: u32, pose: Pose, action: Option<&Action>) -> Result<(u64, u64), ApiError> {
+        let k = *s.intrinsics();
+        let latent = self.latent_of(rgb, w, h, &k, "image_png")?;
+        s.frustum(pose)?;
+        let time = s.next_time();
+        let index = s.frames.len() as u64;
+        let record = FrameRecord { meta: meta(&pose, time, "observed", action, None), latent, png: encode_png(rgb, w, h) };
+        self.store.put_frame(s.id, index, &record)?;
+        s.push(time, pose, record.latent, None)?;
+        Ok((index, time))
+    }
+}
+
+fn ms(since: Instant) -> f64 {
+    since.elapsed().as_secs_f64() * 1e3
+}
+
+pub fn meta(pose: &Pose, time: u64, source: &str, action: Option<&Action>, player: Option<&PlayerState>) -> FrameMeta {
+    FrameMeta {
+        c2w: pose.matrix_rows(),
+        time,
+        source: source.into(),
+        action: action.map(|a| a.to_vector().to_vec()),
+        player: player.map(player_to),
+    }
+}
+
+pub fn encode_png(rgb: &[u8], w: u32, h: u32) -> Vec<u8> {
+    let mut out = Vec::new();
+    let mut enc = png::Encoder::new(&mut out, w, h);
+    enc.set_color(png::ColorType::Rgb);
+    enc.set_depth(png::BitDepth::Eight);
+    enc.write_header().and_then(|mut w| w.write_image_data(rgb)).expect("encoding a PNG into memory");
+    out
+}
+
+/// The denoiser layout whose slots are the policy's packing, tier by tier.
+pub fn layout_for(m: &Model, policy: &Policy) -> Result<String, ApiError> {
+    let want: Vec<(u32, usize)> = policy.packing.tiers().iter().map(|t| (t.rate, t.slots)).collect();
+    m.manifest()
+        .denoiser
+        .layouts
+        .iter()
+        .find(|l| l.slots.iter().map(|s| (s.rate, s.count)).collect::<Vec<_>>() == want)
+        .map(|l| l.name.clone())
+        .ok_or_else(|| {
+            ApiError::bad("policy", format!("the model has no context layout with slots {want:?} (rate, count); its layouts fit baseline (4x1) and worldpack (2x1, 4x4, 16x16) packings"))
+        })
+}
