@@ -1,6 +1,7 @@
 //! `worldpack`: the product's command line.
 
 mod bench;
+mod bench_serve;
 mod bench_step;
 mod demo;
 mod geometry;
@@ -193,6 +194,30 @@ enum BenchCommand {
         #[arg(long)]
         json: bool,
     },
+    /// The server: HTTP step latency against the same step as a library call, and
+    /// throughput and p99 with 1, 2, 4 and 16 sessions stepping at once.
+    Serve {
+        #[arg(long, default_value = "fixtures/small")]
+        model: PathBuf,
+        /// Sampler steps per generated frame.
+        #[arg(long, default_value_t = 16, value_parser = clap::value_parser!(u64).range(1..=1000))]
+        steps: u64,
+        /// Interleaved library/HTTP steps timed.
+        #[arg(long, default_value_t = 20, value_parser = clap::value_parser!(u64).range(1..=10_000))]
+        calls: u64,
+        /// Comma-separated numbers of concurrent sessions.
+        #[arg(long, value_delimiter = ',', default_value = "1,2,4,16")]
+        sessions: Vec<usize>,
+        /// Steps per session in the concurrency runs.
+        #[arg(long, default_value_t = 4, value_parser = clap::value_parser!(u64).range(1..=10_000))]
+        per_session: u64,
+        #[arg(long, default_value = "cpu", value_parser = parse_provider)]
+        provider: model::Provider,
+        #[arg(long, default_value_t = 1)]
+        threads: usize,
+        #[arg(long)]
+        json: bool,
+    },
     /// (internal) One layout's peak memory, in a process of its own.
     #[command(hide = true)]
     StepProbe {
@@ -244,6 +269,14 @@ fn main() -> ExitCode {
                 return ExitCode::from(2);
             }
             report(bench_step::run(&model, model::RuntimeOptions { provider, threads }, &steps, calls as usize, json), "bench step")
+        }
+        Command::Bench { what: BenchCommand::Serve { model, steps, calls, sessions, per_session, provider, threads, json } } => {
+            if let Some(bad) = sessions.iter().find(|&&n| n == 0 || n > 256) {
+                eprintln!("worldpack bench serve: --sessions must lie in 1..=256, got {bad}");
+                return ExitCode::from(2);
+            }
+            let runtime = model::RuntimeOptions { provider, threads };
+            report(bench_serve::run(&model, runtime, steps as usize, calls as usize, &sessions, per_session as usize, json), "bench serve")
         }
         Command::Bench { what: BenchCommand::StepProbe { model, layout, provider, threads, calls } } => {
             report(bench_step::probe(&model, &layout, model::RuntimeOptions { provider, threads }, calls), "bench step-probe")
