@@ -278,3 +278,27 @@ fn acknowledged_frames_survive_sigkill() {
     }
     let _ = std::fs::remove_dir_all(store.parent().unwrap());
 }
+
+#[test]
+fn the_openapi_document_describes_the_routes_and_docs_are_served_offline() {
+    let s = Server::start(&temp_store("openapi"), &["--memory-only"]);
+    let (code, doc) = s.get("/openapi.json");
+    assert_eq!(code, 200);
+    let paths = doc["paths"].as_object().unwrap();
+    assert!(paths.len() >= 9);
+    for (path, item) in paths {
+        let concrete = path.replace("{id}", "999999").replace("{index}", "0");
+        for method in item.as_object().unwrap().keys().filter(|m| ["get", "post", "delete"].contains(&m.as_str())) {
+            let url = format!("{}{concrete}", s.url);
+            let resp = match method.as_str() {
+                "get" => ureq::get(&url).call(),
+                "delete" => ureq::delete(&url).call(),
+                _ => ureq::post(&url).set("Content-Type", "application/json").send_string("{}"),
+            };
+            let (code, body) = answer(resp);
+            assert_ne!(body["error"]["field"], "path", "{method} {path} is documented but not routed ({code})");
+        }
+    }
+    let html = ureq::get(&format!("{}/docs/", s.url)).call().unwrap().into_string().unwrap();
+    assert!(html.contains("swagger-ui"), "the docs page is Swagger UI, served from the binary");
+}

@@ -31,8 +31,13 @@ use crate::{AppState, Slot};
 type Res<T> = Result<T, ApiError>;
 type St = State<Arc<AppState>>;
 
+/// The OpenAPI description, written by hand (docs/api.md says it in prose).
+pub const OPENAPI: &str = include_str!("../openapi.json");
+
 pub fn router(state: Arc<AppState>) -> Router {
+    let doc: Value = serde_json::from_str(OPENAPI).expect("api/openapi.json is valid JSON (tested)");
     Router::new()
+        .merge(utoipa_swagger_ui::SwaggerUi::new("/docs").external_url_unchecked("/openapi.json", doc))
         .route("/v1/health", get(health))
         .route("/metrics", get(metrics))
         .route("/v1/sessions", post(create))
@@ -42,7 +47,7 @@ pub fn router(state: Arc<AppState>) -> Router {
         .route("/v1/sessions/{id}/select", post(select))
         .route("/v1/sessions/{id}/frames/{index}", get(frame))
         .route("/v1/sessions/{id}/frames/{index}/image", get(frame_image))
-        .fallback(|| async { ApiError::not_found("path", "no such endpoint; see docs/api.md") })
+        .fallback(|| async { ApiError::not_found("path", "no such endpoint; see /docs or docs/api.md") })
         .with_state(state)
 }
 
@@ -391,4 +396,14 @@ async fn frame_image(State(st): St, p: Result<Path<(u64, u64)>, PathRejection>) 
     let f = blocking(move || st2.engine.store.frame(id, index).map_err(ApiError::from)).await?;
     let f = f.ok_or_else(|| ApiError::not_found("index", format!("session {id} has no frame {index}")))?;
     Ok(([(header::CONTENT_TYPE, "image/png")], f.png).into_response())
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn the_openapi_document_is_json_with_every_endpoint() {
+        let doc: serde_json::Value = serde_json::from_str(super::OPENAPI).unwrap();
+        assert_eq!(doc["openapi"], "3.1.0");
+        assert_eq!(doc["paths"].as_object().unwrap().len(), 9);
+    }
 }
