@@ -2,6 +2,7 @@
 
 mod bench;
 mod bench_serve;
+mod bench_store;
 mod bench_step;
 mod demo;
 mod geometry;
@@ -218,6 +219,13 @@ enum BenchCommand {
         #[arg(long)]
         json: bool,
     },
+    /// The durable store: redb (what the server uses) against SQLite (WAL, full sync), one commit per frame.
+    Store {
+        #[arg(long, default_value_t = 500, value_parser = clap::value_parser!(u64).range(1..=1_000_000))]
+        frames: u64,
+        #[arg(long)]
+        json: bool,
+    },
     /// (internal) One layout's peak memory, in a process of its own.
     #[command(hide = true)]
     StepProbe {
@@ -278,6 +286,7 @@ fn main() -> ExitCode {
             let runtime = model::RuntimeOptions { provider, threads };
             report(bench_serve::run(&model, runtime, steps as usize, calls as usize, &sessions, per_session as usize, json), "bench serve")
         }
+        Command::Bench { what: BenchCommand::Store { frames, json } } => report(bench_store::run(frames as usize, json), "bench store"),
         Command::Bench { what: BenchCommand::StepProbe { model, layout, provider, threads, calls } } => {
             report(bench_step::probe(&model, &layout, model::RuntimeOptions { provider, threads }, calls), "bench step-probe")
         }

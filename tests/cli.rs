@@ -121,3 +121,16 @@ fn bench_serve_compares_http_with_the_library_call() {
     assert_eq!(code, 2);
     assert!(stderr.contains("--sessions"), "{stderr}");
 }
+
+#[test]
+fn bench_store_writes_and_reads_back_both_databases() {
+    let (code, stdout, stderr) = worldpack(&["bench", "store", "--frames", "5", "--json"], "");
+    assert_eq!(code, 0, "{stderr}");
+    let rows: serde_json::Value = serde_json::from_str(&stdout).unwrap();
+    let names: Vec<&str> = rows.as_array().unwrap().iter().map(|r| r["store"].as_str().unwrap()).collect();
+    assert!(names[0].starts_with("redb") && names[1].starts_with("SQLite"), "{names:?}");
+    for r in rows.as_array().unwrap() {
+        assert_eq!(r["frames"], 5);
+        assert!(r["bytes_per_frame"].as_u64().unwrap() > 4096, "a latent alone is 4 KiB");
+    }
+}
