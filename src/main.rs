@@ -57,6 +57,12 @@ enum Command {
         /// Policy of sessions that do not name one: baseline, nearest_frame_packing, memory_retrieval, worldpack, worldmem_greedy.
         #[arg(long, default_value = "worldpack", value_parser = plan::parse_policy)]
         policy: memory::PolicyKind,
+        /// Requests queued on one session before the next is refused with 429.
+        #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u64).range(1..=100_000))]
+        max_queue: u64,
+        /// Model calls in flight across sessions before the next is refused with 503.
+        #[arg(long, default_value_t = 64, value_parser = clap::value_parser!(u64).range(1..=100_000))]
+        max_inflight: u64,
     },
     /// Benchmarks (tables on stdout; --json for machines).
     Bench {
@@ -302,7 +308,7 @@ fn main() -> ExitCode {
                 report(sim::render_one(&out, seed, pose, biome, size, probe), "sim render")
             }
         },
-        Command::Serve { model, memory_only, store, addr, provider, threads, steps, method, policy } => {
+        Command::Serve { model, memory_only, store, addr, provider, threads, steps, method, policy, max_queue, max_inflight } => {
             let config = api::Config {
                 addr,
                 store,
@@ -311,6 +317,8 @@ fn main() -> ExitCode {
                 steps: steps as usize,
                 method,
                 policy: serde_json::json!({ "kind": policy }),
+                max_queue_per_session: max_queue as usize,
+                max_inflight: max_inflight as usize,
                 ..api::Config::default()
             };
             report(serve(config), "serve")

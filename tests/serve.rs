@@ -302,3 +302,31 @@ fn the_openapi_document_describes_the_routes_and_docs_are_served_offline() {
     let html = ureq::get(&format!("{}/docs/", s.url)).call().unwrap().into_string().unwrap();
     assert!(html.contains("swagger-ui"), "the docs page is Swagger UI, served from the binary");
 }
+
+#[test]
+fn full_queues_answer_429_and_503_and_lose_nothing() {
+    let s = Server::start(&temp_store("queues"), &["--max-queue", "1", "--max-inflight", "1"]);
+    let ids: Vec<u64> = (0..2).map(|_| s.post("/v1/sessions", &json!({ "synthetic": { "seed": 1 } })).1["session"].as_u64().unwrap()).collect();
+    // Many slow steps at once: on one session they queue (429 past one waiting),
+    // across sessions they compete for the one model slot (503).
+    let codes: Vec<u16> = std::thread::scope(|scope| {
+        let workers: Vec<_> = (0..8)
+            .map(|i| {
+                let (s, id) = (&s, ids[i % 2]);
+                scope.spawn(move || s.post(&format!("/v1/sessions/{id}/step"), &json!({ "action": { "forward": true }, "steps": 40 })))
+            })
+            .collect();
+        workers.into_iter().map(|w| w.join().unwrap()).map(|(code, r)| {
+            if code != 200 {
+                assert!(r["error"]["message"].as_str().is_some(), "{r}");
+            }
+            code
+        }).collect()
+    });
+    assert!(codes.iter().all(|c| [200, 429, 503].contains(c)), "{codes:?}");
+    assert!(codes.contains(&200), "{codes:?}");
+    assert!(codes.iter().any(|&c| c == 429 || c == 503), "8 concurrent slow steps against queue 1 / in-flight 1: {codes:?}");
+    // Exactly the accepted steps were stored.
+    let stored: u64 = ids.iter().map(|id| s.get(&format!("/v1/sessions/{id}")).1["frames"].as_u64().unwrap() - 1).sum();
+    assert_eq!(stored, codes.iter().filter(|&&c| c == 200).count() as u64);
+}
