@@ -361,15 +361,20 @@ async fn select(State(st): St, id: Result<Path<u64>, PathRejection>, headers: He
     let req: SelectRequest = parse(&headers, body)?;
     let pose = pose_from(&req.pose, "pose")?;
     let slot = slot(&st, id)?;
-    let s = slot.session.lock().await;
-    let t = Instant::now();
-    let frustum = s.frustum(pose)?;
-    let (plan, stats) = s.memory.select(&s.policy, &frustum, None);
+    let s = lock(&st, &slot).await?;
+    // Selection over a long history is CPU work: off the async workers.
+    let out = blocking(move || {
+        let t = Instant::now();
+        let frustum = s.frustum(pose)?;
+        let (plan, stats) = s.memory.select(&s.policy, &frustum, None);
+        Ok(json!({
+            "session": id, "plan": plan_json(&s.policy, &plan), "exact_evaluations": stats.overlap_evaluations,
+            "candidates": s.frames.len(), "select_ms": t.elapsed().as_secs_f64() * 1e3,
+        }))
+    })
+    .await?;
     st.metrics.selects.fetch_add(1, Ordering::Relaxed);
-    Ok(Json(json!({
-        "session": id, "plan": plan_json(&s.policy, &plan), "exact_evaluations": stats.overlap_evaluations,
-        "candidates": s.frames.len(), "select_ms": t.elapsed().as_secs_f64() * 1e3,
-    })))
+    Ok(Json(out))
 }
 
 fn frame_ids(p: Result<Path<(u64, u64)>, PathRejection>) -> Res<(u64, u64)> {

@@ -94,7 +94,9 @@ pub fn environment() -> Result<&'static Environment, ModelError> {
     });
     match env {
         Ok(env) => Ok(env),
-        Err(e) => Err(ModelError::LibraryNotFound(e.to_string())),
+        // The first failure is kept; later callers get the same error.
+        Err(ModelError::LibraryLoad { path, message }) => Err(ModelError::LibraryLoad { path: path.clone(), message: message.clone() }),
+        Err(e) => Err(ModelError::LibraryNotFound(e.to_string().trim_start_matches("ONNX Runtime library not found: ").to_string())),
     }
 }
 
