@@ -83,6 +83,9 @@ async fn lock(st: &AppState, slot: &Arc<Slot>) -> Res<tokio::sync::OwnedMutexGua
     }
     let guard = slot.session.clone().lock_owned().await;
     slot.waiting.fetch_sub(1, Ordering::SeqCst);
+    if guard.deleted {
+        return Err(ApiError::not_found("session", format!("session {} was deleted", guard.id)));
+    }
     Ok(guard)
 }
 
@@ -253,7 +256,7 @@ async fn create(State(st): St, headers: HeaderMap, body: Result<Bytes, BytesReje
 async fn describe(State(st): St, id: Result<Path<u64>, PathRejection>) -> Res<Json<Value>> {
     let id = session_id(id)?;
     let slot = slot(&st, id)?;
-    let s = slot.session.lock().await;
+    let s = lock(&st, &slot).await?;
     Ok(Json(json!({
         "session": id,
         "frames": s.frames.len(),
@@ -267,9 +270,10 @@ async fn describe(State(st): St, id: Result<Path<u64>, PathRejection>) -> Res<Js
 async fn delete(State(st): St, id: Result<Path<u64>, PathRejection>) -> Res<StatusCode> {
     let id = session_id(id)?;
     let slot = slot(&st, id)?;
-    let _guard = lock(&st, &slot).await?;
+    let mut guard = lock(&st, &slot).await?;
     let st2 = st.clone();
     blocking(move || Ok(st2.engine.store.delete_session(id)?)).await?;
+    guard.deleted = true;
     st.sessions.write().unwrap().remove(&id);
     Ok(StatusCode::NO_CONTENT)
 }

@@ -25,6 +25,8 @@ pub struct Session {
     pub frames: Vec<Frame>,
     pub last_plan: Option<ContextPlan>,
     pub world: Option<Arc<World>>,
+    /// Set by a delete; requests that were queued on the session see it and answer 404.
+    pub deleted: bool,
 }
 
 pub fn policy_of(spec: &serde_json::Value) -> Result<Policy, ApiError> {
@@ -42,7 +44,7 @@ impl Session {
     /// Rebuilds a session from its stored record and frames (server start).
     pub fn restore(id: u64, record: SessionRecord, frames: Vec<FrameRecord>, world: Option<Arc<World>>) -> Result<Session, ApiError> {
         let policy = policy_of(&record.policy)?;
-        let mut s = Session { id, record, policy, memory: FrameMemory::new(), frames: Vec::new(), last_plan: None, world };
+        let mut s = Session { id, record, policy, memory: FrameMemory::new(), frames: Vec::new(), last_plan: None, world, deleted: false };
         for f in frames {
             s.push(f.meta.time, pose_of(&f.meta)?, f.latent, f.meta.player.map(player_from))?;
         }
