@@ -13,6 +13,8 @@ use serde_json::{Value, json};
 struct Server {
     child: Child,
     url: String,
+    /// Held so the server's stdout stays open for as long as it runs.
+    _stdout: BufReader<std::process::ChildStdout>,
 }
 
 impl Server {
@@ -24,11 +26,12 @@ impl Server {
             args.extend(["--model", fixture]);
         }
         args.extend(extra);
-        let mut child = Command::new(env!("CARGO_BIN_EXE_worldpack")).args(&args).stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().unwrap();
+        let mut child = Command::new(env!("CARGO_BIN_EXE_worldpack")).args(&args).stdout(Stdio::piped()).stderr(Stdio::inherit()).spawn().unwrap();
         let mut line = String::new();
-        BufReader::new(child.stdout.take().unwrap()).read_line(&mut line).unwrap();
+        let mut stdout = BufReader::new(child.stdout.take().unwrap());
+        stdout.read_line(&mut line).unwrap();
         let url = line.split("listening on ").nth(1).and_then(|r| r.split_whitespace().next()).unwrap_or_else(|| panic!("no address in {line:?}")).to_string();
-        Server { child, url }
+        Server { child, url, _stdout: stdout }
     }
 
     fn kill(mut self) {
