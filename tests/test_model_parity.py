@@ -1,0 +1,176 @@
+"""The committed model export, checked without torch: every ONNX graph in
+Python onnxruntime against the PyTorch references written at export time,
+the reference samplers against the PyTorch sampling traces, the graphs'
+names and shapes against the manifest, and the manifest's own consistency
+(also for an SD-VAE-shaped model a user might export)."""
+
+import json
+import pathlib
+import sys
+
+import numpy as np
+import onnx
+import onnxruntime as ort
+import pytest
+
+ROOT = pathlib.Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT / "model" / "python"))
+
+from worldpack_model import manifest as wm  # noqa: E402  (torch-free modules only)
+from worldpack_model.config import DiffusionConfig  # noqa: E402
+from worldpack_model.diffusion import Sampler, Schedule, sample  # noqa: E402
+
+MODEL = ROOT / "fixtures" / "small"
+MANIFEST = json.loads((MODEL / "manifest.json").read_text())
+TOL = MANIFEST["reference"]["tolerance"]
+
+
+def close(actual, expected, what):
+    actual, expected = np.asarray(actual), np.asarray(expected)
+    assert actual.shape == expected.shape, f"{what}: shape {actual.shape} != {expected.shape}"
+    excess = np.abs(actual - expected) - (TOL["abs"] + TOL["rel"] * np.abs(expected))
+    worst = float(excess.max())
+    assert worst <= 0, f"{what}: exceeds |a-b| <= {TOL['abs']} + {TOL['rel']}|b| by {worst:.3g}"
+
+
+def session(file):
+    return ort.InferenceSession(str(MODEL / file), providers=["CPUExecutionProvider"])
+
+
+def load(folder):
+    return {p.stem: np.load(p) for p in (MODEL / folder).glob("*.npy")}
+
+
+def graphs():
+    """(graph name, onnx file, io spec) for every exported graph."""
+    ae = MANIFEST["autoencoder"]
+    out = [("encoder", ae["encoder"]["file"], ae["encoder"]), ("decoder", ae["decoder"]["file"], ae["decoder"])]
+    out += [(f"denoiser_{lay['name']}", lay["file"], lay) for lay in MANIFEST["denoiser"]["layouts"]]
+    return out
+
+
+def run_graph(name, file, spec, arrays):
+    feed = {s["name"]: arrays[s["name"]] for s in spec["inputs"]}
+    return session(file).run(None, feed)
+
+
+@pytest.mark.parametrize("name,file,spec", graphs(), ids=[g[0] for g in graphs()])
+def test_graph_matches_pytorch(name, file, spec):
+    arrays = load(MANIFEST["reference"]["graphs"][name])
+    outputs = run_graph(name, file, spec, arrays)
+    for out_spec, got in zip(spec["outputs"], outputs):
+        close(got, arrays[out_spec["name"]], f"{name}.{out_spec['name']}")
+
+
+@pytest.mark.parametrize("name,file,spec", graphs(), ids=[g[0] for g in graphs()])
+def test_graph_io_matches_manifest(name, file, spec):
+    model = onnx.load(str(MODEL / file), load_external_data=False)
+    assert model.ir_version <= 10, f"{file}: IR version {model.ir_version}; ONNX Runtime 1.31 needs <= 10 here"
+    sess = session(file)
+    for declared, actual in ((spec["inputs"], sess.get_inputs()), (spec["outputs"], sess.get_outputs())):
+        assert [d["name"] for d in declared] == [a.name for a in actual], file
+        for d, a in zip(declared, actual):
+            fixed = [x if isinstance(x, int) else None for x in d["shape"]]
+            got = [x if isinstance(x, int) else None for x in a.shape]
+            assert fixed == got, f"{file}: {d['name']} shape {a.shape}, manifest says {d['shape']}"
+            assert a.type == "tensor(float)", f"{file}: {d['name']} is {a.type}"
+
+
+def test_batch_is_dynamic_and_rows_independent():
+    lay = MANIFEST["denoiser"]["layouts"][0]
+    arrays = load(MANIFEST["reference"]["graphs"][f"denoiser_{lay['name']}"])
+    one = run_graph("", lay["file"], lay, {k: v[1:2] for k, v in arrays.items()})[0]
+    close(one, arrays["eps"][1:2], "second row run alone")
+
+
+def test_empty_slots_are_ignored_and_present_ones_are_not():
+    """A masked slot's contents cannot change eps; a present slot's must."""
+    lay = next(l for l in MANIFEST["denoiser"]["layouts"] if len(l["slots"]) > 1)
+    arrays = load(MANIFEST["reference"]["graphs"][f"denoiser_{lay['name']}"])
+    sess = session(lay["file"])
+    feed = {s["name"]: arrays[s["name"]].copy() for s in lay["inputs"]}
+    r = lay["slots"][-1]["rate"]
+    feed[f"context_mask_r{r}"][:, -1] = 0.0
+    base = sess.run(None, feed)[0]
+    feed[f"context_r{r}"][:, -1] += 5.0
+    feed[f"context_pose_r{r}"][:, -1] += 1.0
+    close(sess.run(None, feed)[0], base, "eps after changing a masked slot")
+    r1 = lay["slots"][0]["rate"]
+    feed[f"context_r{r1}"][:, 0] += 1.0
+    changed = np.abs(sess.run(None, feed)[0] - base).max()
+    assert changed > 1e-3, f"changing a present slot moved eps by only {changed}"
+
+
+def test_rate_slots_cost_the_manifest_tokens():
+    for lay in MANIFEST["denoiser"]["layouts"]:
+        assert lay["context_tokens"] == sum(s["count"] * s["tokens_per_frame"] for s in lay["slots"])
+    packed = next(l for l in MANIFEST["denoiser"]["layouts"] if l["name"] == "worldpack")
+    base = next(l for l in MANIFEST["denoiser"]["layouts"] if l["name"] == "baseline")
+    assert packed["frames"] == 22 and base["frames"] == 4
+    assert packed["context_tokens"] == base["context_tokens"], "the packed 22 frames must fit the 4-frame budget"
+
+
+@pytest.mark.parametrize("method", sorted(MANIFEST["reference"]["traces"]))
+def test_sampler_trace_matches_pytorch(method):
+    """Each step from the reference state, with ONNX Runtime as the denoiser and
+    the NumPy reference sampler, lands on PyTorch's next state."""
+    info = MANIFEST["reference"]["traces"][method]
+    trace = load(info["folder"])
+    lay = next(l for l in MANIFEST["denoiser"]["layouts"] if l["name"] == info["layout"])
+    cond = load(MANIFEST["reference"]["graphs"][f"denoiser_{lay['name']}"])
+    sess = session(lay["file"])
+    names = [s["name"] for s in lay["inputs"]]
+    schedule = Schedule(DiffusionConfig(**{k: MANIFEST["diffusion"][k] for k in ("timesteps", "beta_start", "beta_end")}))
+    sampler = Sampler(schedule, info["steps"], method, info["eta"])
+    assert list(sampler.timesteps) == list(trace["timesteps"])
+    for i, t in enumerate(sampler.timesteps):
+        feed = {n: cond[n] for n in names}
+        feed["x_t"] = trace["x"][i]
+        feed["timestep"] = np.full(trace["x"].shape[1], t, np.float32)
+        eps = sess.run(None, feed)[0]
+        close(eps, trace["eps"][i], f"{method} step {i} eps")
+        close(sampler.step(i, trace["x"][i], eps, trace["noise"][i]), trace["x"][i + 1], f"{method} step {i} state")
+
+
+@pytest.mark.parametrize("method", ["ancestral", "ddim"])
+def test_samplers_recover_x0_from_an_oracle(method):
+    """With the true noise as the model's answer, both samplers land on x0."""
+    schedule = Schedule(DiffusionConfig())
+    rng = np.random.default_rng(0)
+    x0 = rng.standard_normal((2, 4, 8, 8)).astype(np.float32)
+    ab = schedule.alphas_cumprod
+    oracle = lambda x, t: ((x - np.sqrt(ab[int(t[0])]) * x0) / np.sqrt(1 - ab[int(t[0])])).astype(np.float32)
+    x_T = (np.sqrt(ab[-1]) * x0 + np.sqrt(1 - ab[-1]) * rng.standard_normal(x0.shape)).astype(np.float32)
+    trace = sample(oracle, schedule, x_T, 12, method)
+    assert trace.timesteps[0] == 999 and trace.timesteps[-1] == 0
+    np.testing.assert_allclose(trace.x[-1], x0, atol=1e-5)
+
+
+def test_committed_manifest_is_consistent():
+    assert wm.validate(MANIFEST) == []
+
+
+def test_sd_vae_shaped_manifest_is_accepted():
+    """A CDiT-B/2 over the SD VAE (28x28x4 latents, scale 0.18215) at rates 1/4/16."""
+    example = json.loads((ROOT / "fixtures" / "examples" / "sd-vae-cdit-b2.manifest.json").read_text())
+    assert wm.validate(example) == []
+    slots = {s["rate"]: s["tokens_per_frame"] for s in example["denoiser"]["layouts"][0]["slots"]}
+    assert slots == {1: 196, 4: 49, 16: 16}, "28/2=14, 28/4=7, 28/8 -> replicate-padded to 4 per side"
+
+
+@pytest.mark.parametrize("path,value,expect", [
+    ("autoencoder.latent_scale", -1.0, "autoencoder.latent_scale"),
+    ("denoiser.layouts.0.slots.1.tokens_per_frame", 15, "denoiser.layouts[0].slots[1].tokens_per_frame"),
+    ("denoiser.layouts.0.slots.1.rate", 3, "denoiser.layouts[0].slots[1].rate"),
+    ("diffusion.beta_end", 1e-5, "diffusion.beta_start/beta_end"),
+    ("format", "other/1", "format"),
+])
+def test_bad_manifests_name_the_field(path, value, expect):
+    bad = json.loads(json.dumps(MANIFEST))
+    node = bad
+    parts = path.split(".")
+    for p in parts[:-1]:
+        node = node[int(p)] if p.isdigit() else node[p]
+    node[parts[-1]] = value
+    errors = wm.validate(bad)
+    assert any(e.startswith(expect) for e in errors), errors
