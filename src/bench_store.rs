@@ -35,6 +35,7 @@ fn sample_frame(i: u64) -> FrameRecord {
         meta: FrameMeta { c2w: player.camera().matrix_rows(), time: i, source: "generated".into(), action: Some(vec![1.0, 0.0, 0.0, 0.0, 0.0, 5.0, 0.0]), player: None },
         latent: model::generate::gaussian(i, 4 * 16 * 16),
         png: api::engine::encode_png(&frame.rgb, 64, 64),
+        depth_png16: Vec::new(),
     }
 }
 

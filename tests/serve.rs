@@ -151,6 +151,24 @@ fn without_a_model_the_server_is_a_memory_store() {
     let (code, r) = s.post(&format!("/v1/sessions/{id}/select"), &json!({ "pose": c2w([20.0, 0.0, 1.0]) }));
     assert_eq!(code, 200);
     assert_eq!(r["plan"]["slots"][0]["frame"], 4, "the nearest view ranks first: {r}");
+    assert_eq!(r["plan"]["slots"][1]["frame"], 3, "then the one five units back: {r}");
+    // Depth rides along as a 16-bit PNG (millimetres) and comes back byte for byte.
+    let depth = {
+        let mut out = Vec::new();
+        let mut enc = png::Encoder::new(&mut out, 64, 64);
+        enc.set_color(png::ColorType::Grayscale);
+        enc.set_depth(png::BitDepth::Sixteen);
+        let mm: Vec<u8> = (0..64 * 64u32).flat_map(|i| ((1000 + i) as u16).to_be_bytes()).collect();
+        enc.write_header().unwrap().write_image_data(&mm).unwrap();
+        out
+    };
+    let (code, r) = s.post(&format!("/v1/sessions/{id}/observe"), &json!({ "image_png": png, "pose": c2w([21.0, 0.0, 0.0]), "depth_png16": B64.encode(&depth) }));
+    assert_eq!(code, 200, "{r}");
+    let index = r["index"].as_u64().unwrap();
+    assert_eq!(s.bytes(&format!("/v1/sessions/{id}/frames/{index}/depth")), depth);
+    assert_eq!(s.get(&format!("/v1/sessions/{id}/frames/1/depth")).1["error"]["field"], "depth");
+    let (code, r) = s.post(&format!("/v1/sessions/{id}/observe"), &json!({ "image_png": png, "pose": c2w([0.0; 3]), "depth_png16": png }));
+    assert_eq!((code, r["error"]["field"].as_str()), (400, Some("depth_png16")), "an RGB image is not a depth map: {r}");
     let (code, r) = s.post(&format!("/v1/sessions/{id}/step"), &json!({ "action": { "forward": true } }));
     assert_eq!((code, r["error"]["field"].as_str()), (409, Some("model")));
 }
@@ -240,7 +258,7 @@ fn acknowledged_frames_survive_sigkill() {
     };
     let intrinsics = json!({ "hfov_deg": 70, "width": 64, "height": 64 });
     let mut acknowledged: Vec<(u64, u64, f64)> = Vec::new(); // session, index, x
-    for round in 0..6u64 {
+    for round in 0..10u64 {
         let s = Server::start(&store, &["--memory-only"]);
         // Everything acknowledged before is there, bit for bit.
         for &(id, index, x) in &acknowledged {

@@ -79,7 +79,7 @@ impl Engine {
         let player = PlayerState::at_cell(cell, 0.0);
         let frame = render(&world, &player.camera(), &k, &RenderSettings::default());
         let latent = self.latent_of(&frame.rgb, k.width, k.height, &k, "synthetic")?;
-        let first = FrameRecord { meta: meta(&player.camera(), 0, "observed", None, Some(&player)), latent, png: encode_png(&frame.rgb, k.width, k.height) };
+        let first = FrameRecord { meta: meta(&player.camera(), 0, "observed", None, Some(&player)), latent, png: encode_png(&frame.rgb, k.width, k.height), depth_png16: Vec::new() };
         self.create(SessionRecord { policy, intrinsics: k, world_seed: Some(seed) }, vec![first], Some(world))
     }
 
@@ -125,7 +125,7 @@ impl Engine {
         let decode_ms = ms(t2);
         let t3 = Instant::now();
         let index = s.frames.len() as u64;
-        let record = FrameRecord { meta: meta(&pose, time, "generated", Some(action), player.as_ref()), latent: latent.data, png };
+        let record = FrameRecord { meta: meta(&pose, time, "generated", Some(action), player.as_ref()), latent: latent.data, png, depth_png16: Vec::new() };
         self.store.put_frame(s.id, index, &record)?;
         let store_ms = ms(t3);
         s.push(time, pose, record.latent, player)?;
@@ -142,14 +142,15 @@ impl Engine {
         })
     }
 
-    /// Appends a caller's frame (encoded when a model is loaded) and commits it.
-    pub fn observe(&self, s: &mut Session, rgb: &[u8], w: u32, h: u32, pose: Pose, action: Option<&Action>) -> Result<(u64, u64), ApiError> {
+    /// Appends a caller's frame (encoded when a model is loaded), with its
+    /// depth PNG when given, and commits it.
+    pub fn observe(&self, s: &mut Session, rgb: &[u8], w: u32, h: u32, pose: Pose, action: Option<&Action>, depth_png16: Vec<u8>) -> Result<(u64, u64), ApiError> {
         let k = *s.intrinsics();
         let latent = self.latent_of(rgb, w, h, &k, "image_png")?;
         s.frustum(pose)?;
         let time = s.next_time();
         let index = s.frames.len() as u64;
-        let record = FrameRecord { meta: meta(&pose, time, "observed", action, None), latent, png: encode_png(rgb, w, h) };
+        let record = FrameRecord { meta: meta(&pose, time, "observed", action, None), latent, png: encode_png(rgb, w, h), depth_png16 };
         self.store.put_frame(s.id, index, &record)?;
         s.push(time, pose, record.latent, None)?;
         Ok((index, time))

@@ -47,6 +47,7 @@ pub fn router(state: Arc<AppState>) -> Router {
         .route("/v1/sessions/{id}/select", post(select))
         .route("/v1/sessions/{id}/frames/{index}", get(frame))
         .route("/v1/sessions/{id}/frames/{index}/image", get(frame_image))
+        .route("/v1/sessions/{id}/frames/{index}/depth", get(frame_depth))
         .fallback(|| async { ApiError::not_found("path", "no such endpoint; see /docs or docs/api.md") })
         .with_state(state)
 }
@@ -238,7 +239,7 @@ async fn create(State(st): St, headers: HeaderMap, body: Result<Bytes, BytesReje
                     let pose = pose_from(&f.pose, &format!("{at}.pose"))?;
                     let (rgb, w, h) = decode_png(&format!("{at}.image_png"), &f.image_png)?;
                     let latent = e.latent_of(&rgb, w, h, &k, &format!("{at}.image_png"))?;
-                    records.push(FrameRecord { meta: meta(&pose, i as u64, "observed", None, None), latent, png: encode_png(&rgb, w, h) });
+                    records.push(FrameRecord { meta: meta(&pose, i as u64, "observed", None, None), latent, png: encode_png(&rgb, w, h), depth_png16: Vec::new() });
                 }
                 e.create(SessionRecord { policy: policy_spec, intrinsics: k, world_seed: None }, records, None)?
             }
@@ -331,6 +332,24 @@ struct ObserveRequest {
     pose: PoseInput,
     #[serde(default)]
     action: Option<Action>,
+    /// Depth as a 16-bit grayscale PNG in millimetres (0 = unknown), the image's size.
+    #[serde(default)]
+    depth_png16: Option<String>,
+}
+
+/// Checks a depth PNG (16-bit grayscale, `w`×`h`) and returns its bytes as sent.
+fn depth_png(b64: &str, w: u32, h: u32) -> Res<Vec<u8>> {
+    let field = "depth_png16";
+    let bytes = B64.decode(b64.trim()).map_err(|e| ApiError::bad(field, format!("not base64: {e}")))?;
+    let reader = png::Decoder::new(std::io::Cursor::new(&bytes)).read_info().map_err(|e| ApiError::bad(field, format!("not a PNG: {e}")))?;
+    let info = reader.info();
+    if info.color_type != png::ColorType::Grayscale || info.bit_depth != png::BitDepth::Sixteen {
+        return Err(ApiError::bad(field, format!("must be 16-bit grayscale (millimetres), got {:?} {:?}", info.color_type, info.bit_depth)));
+    }
+    if (info.width, info.height) != (w, h) {
+        return Err(ApiError::bad(field, format!("is {}x{}, the image is {w}x{h}", info.width, info.height)));
+    }
+    Ok(bytes)
 }
 
 async fn observe(State(st): St, id: Result<Path<u64>, PathRejection>, headers: HeaderMap, body: Result<Bytes, BytesRejection>) -> Res<Json<Value>> {
@@ -341,12 +360,13 @@ async fn observe(State(st): St, id: Result<Path<u64>, PathRejection>, headers: H
     }
     let pose = pose_from(&req.pose, "pose")?;
     let (rgb, w, h) = decode_png("image_png", &req.image_png)?;
+    let depth = req.depth_png16.as_deref().map(|d| depth_png(d, w, h)).transpose()?.unwrap_or_default();
     let slot = slot(&st, id)?;
     let mut s = lock(&st, &slot).await?;
     let _permit = permit(&st)?;
     let st2 = st.clone();
     let out = blocking(move || {
-        let (index, time) = st2.engine.observe(&mut s, &rgb, w, h, pose, req.action.as_ref())?;
+        let (index, time) = st2.engine.observe(&mut s, &rgb, w, h, pose, req.action.as_ref(), depth)?;
         Ok(json!({ "session": s.id, "index": index, "time": time, "has_latent": st2.engine.model.is_some() }))
     })
     .await?;
@@ -395,6 +415,7 @@ async fn frame(State(st): St, p: Result<Path<(u64, u64)>, PathRejection>) -> Res
     Ok(Json(json!({
         "session": id, "index": index, "time": f.meta.time, "source": f.meta.source, "pose": pose_json(&pose),
         "action": f.meta.action, "has_latent": !f.latent.is_empty(), "image": format!("/v1/sessions/{id}/frames/{index}/image"),
+        "depth": (!f.depth_png16.is_empty()).then(|| format!("/v1/sessions/{id}/frames/{index}/depth")),
     })))
 }
 
@@ -413,6 +434,18 @@ mod tests {
     fn the_openapi_document_is_json_with_every_endpoint() {
         let doc: serde_json::Value = serde_json::from_str(super::OPENAPI).unwrap();
         assert_eq!(doc["openapi"], "3.1.0");
-        assert_eq!(doc["paths"].as_object().unwrap().len(), 9);
+        assert_eq!(doc["paths"].as_object().unwrap().len(), 10);
     }
+}
+
+async fn frame_depth(State(st): St, p: Result<Path<(u64, u64)>, PathRejection>) -> Res<Response> {
+    let (id, index) = frame_ids(p)?;
+    slot(&st, id)?;
+    let st2 = st.clone();
+    let f = blocking(move || st2.engine.store.frame(id, index).map_err(ApiError::from)).await?;
+    let f = f.ok_or_else(|| ApiError::not_found("index", format!("session {id} has no frame {index}")))?;
+    if f.depth_png16.is_empty() {
+        return Err(ApiError::not_found("depth", format!("frame {index} of session {id} was stored without depth")));
+    }
+    Ok(([(header::CONTENT_TYPE, "image/png")], f.depth_png16).into_response())
 }

@@ -34,12 +34,14 @@ pub struct SessionRecord {
 }
 
 /// One stored frame. `latent` is the model's scaled latent (absent when the
-/// server runs without a model); `png` the image when there is one.
+/// server runs without a model); `png` the image; `depth_png16` the caller's
+/// depth map when given (16-bit grayscale PNG, millimetres, 0 = unknown).
 #[derive(Clone, Debug, PartialEq)]
 pub struct FrameRecord {
     pub meta: FrameMeta,
     pub latent: Vec<f32>,
     pub png: Vec<u8>,
+    pub depth_png16: Vec<u8>,
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -55,10 +57,10 @@ pub struct FrameMeta {
 }
 
 impl FrameRecord {
-    /// `[u32 header length][header JSON][latent f32 LE][png]`, the header
-    /// holding the meta and the latent's length.
+    /// `[u32 header length][header JSON][latent f32 LE][png][depth png]`, the
+    /// header holding the meta, the latent's length and the image's.
     pub fn encode(&self) -> Vec<u8> {
-        let header = serde_json::to_vec(&(&self.meta, self.latent.len())).expect("frame meta serialises");
+        let header = serde_json::to_vec(&(&self.meta, self.latent.len(), self.png.len())).expect("frame meta serialises");
         let mut out = Vec::with_capacity(4 + header.len() + self.latent.len() * 4 + self.png.len());
         out.extend_from_slice(&(header.len() as u32).to_le_bytes());
         out.extend_from_slice(&header);
@@ -66,17 +68,20 @@ impl FrameRecord {
             out.extend_from_slice(&v.to_le_bytes());
         }
         out.extend_from_slice(&self.png);
+        out.extend_from_slice(&self.depth_png16);
         out
     }
 
     pub fn decode(bytes: &[u8]) -> Result<FrameRecord, StoreError> {
         let n = u32::from_le_bytes(bytes.get(..4).ok_or_else(|| err("truncated frame"))?.try_into().unwrap()) as usize;
         let header = bytes.get(4..4 + n).ok_or_else(|| err("truncated frame header"))?;
-        let (meta, latent_len): (FrameMeta, usize) = serde_json::from_slice(header).map_err(err)?;
+        let (meta, latent_len, png_len): (FrameMeta, usize, usize) = serde_json::from_slice(header).map_err(err)?;
         let start = 4 + n;
         let lat = bytes.get(start..start + latent_len * 4).ok_or_else(|| err("truncated latent"))?;
         let latent = lat.chunks_exact(4).map(|c| f32::from_le_bytes(c.try_into().unwrap())).collect();
-        Ok(FrameRecord { meta, latent, png: bytes[start + latent_len * 4..].to_vec() })
+        let png_start = start + latent_len * 4;
+        let png = bytes.get(png_start..png_start + png_len).ok_or_else(|| err("truncated image"))?.to_vec();
+        Ok(FrameRecord { meta, latent, png, depth_png16: bytes[png_start + png_len..].to_vec() })
     }
 }
 
