@@ -3,10 +3,8 @@
 
 use std::time::Instant;
 
-use glam::{DMat3, DVec3, EulerRot};
 use memory::overlap::MonteCarlo;
-use memory::rng::SplitMix64;
-use memory::{ContextPlan, Estimator, FrameMemory, Frustum, Intrinsics, MemoryFrame, Policy, PolicyKind, Pose, select};
+use memory::{ContextPlan, Estimator, FrameMemory, Frustum, Intrinsics, MemoryFrame, Policy, PolicyKind, select};
 use serde::Serialize;
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
@@ -15,6 +13,15 @@ pub enum Workload {
     Loop,
     /// A long walk across a large world: the R-tree's case.
     Walk,
+}
+
+impl From<Workload> for memory::workload::Workload {
+    fn from(w: Workload) -> Self {
+        match w {
+            Workload::Loop => memory::workload::Workload::Loop,
+            Workload::Walk => memory::workload::Workload::Walk,
+        }
+    }
 }
 
 #[derive(Serialize)]
@@ -31,29 +38,6 @@ pub struct Row {
     pub exact_evaluations_per_selection: f64,
     pub box_candidates_per_selection: f64,
     pub insert_us_per_frame: f64,
-}
-
-/// Poses `(position, yaw, pitch)` along the workload, one block per step.
-fn trajectory(workload: Workload, n: usize, seed: u64) -> Vec<(DVec3, f64, f64)> {
-    let mut rng = SplitMix64::new(seed);
-    let (mut pos, mut yaw) = (DVec3::new(0.0, 65.6, 0.0), 0.0f64);
-    (0..n)
-        .map(|_| {
-            yaw += (rng.next_f64() - 0.5) * 0.6;
-            pos += DVec3::new(-yaw.sin(), 0.0, yaw.cos());
-            if workload == Workload::Loop && (pos.x.abs() > 25.0 || pos.z.abs() > 25.0) {
-                pos.x = pos.x.clamp(-25.0, 25.0);
-                pos.z = pos.z.clamp(-25.0, 25.0);
-                yaw += std::f64::consts::PI; // turn back, as LoopNav's agent returns
-            }
-            (pos, yaw, (rng.next_f64() - 0.5) * 0.3)
-        })
-        .collect()
-}
-
-fn frustum(k: Intrinsics, (pos, yaw, pitch): (DVec3, f64, f64)) -> Frustum {
-    let pose = Pose::new(DMat3::from_euler(EulerRot::YXZ, yaw, pitch, 0.0), pos).expect("finite bench pose");
-    Frustum::new(pose, k).expect("valid bench intrinsics")
 }
 
 pub(crate) fn percentile(sorted: &[f64], q: f64) -> f64 {
@@ -82,7 +66,7 @@ pub fn run(workload: Workload, sizes: &[usize], queries: usize, progress: bool) 
     let mut monte_carlo = Policy::preset(PolicyKind::WorldPack);
     monte_carlo.estimator = Estimator::MonteCarlo(MonteCarlo { samples: 10_000, seed: 0 });
     let largest = sizes.iter().copied().max().unwrap_or(0);
-    let poses = trajectory(workload, largest + queries, 7);
+    let all = memory::workload::frusta(workload.into(), largest + queries, 7, k);
     sizes
         .iter()
         .map(|&n| {
@@ -90,7 +74,7 @@ pub fn run(workload: Workload, sizes: &[usize], queries: usize, progress: bool) 
                 eprintln!("bench select: {workload:?}, {n} frames");
             }
             let frames: Vec<MemoryFrame> =
-                (0..n).map(|t| MemoryFrame { id: t as u64, time: t as u64, frustum: frustum(k, poses[t]) }).collect();
+                (0..n).map(|t| MemoryFrame { id: t as u64, time: t as u64, frustum: all[t].clone() }).collect();
             let mut memory = FrameMemory::new();
             let insert_start = Instant::now();
             for f in &frames {
@@ -98,7 +82,7 @@ pub fn run(workload: Workload, sizes: &[usize], queries: usize, progress: bool) 
             }
             let insert_us = insert_start.elapsed().as_secs_f64() * 1e6 / n as f64;
             // Targets: the poses that follow the stored history.
-            let targets: Vec<Frustum> = (0..queries).map(|q| frustum(k, poses[n + q])).collect();
+            let targets: Vec<Frustum> = all[n..n + queries].to_vec();
 
             let mut previous: Option<ContextPlan> = None;
             let (mut evaluations, mut candidates) = (0usize, 0usize);
