@@ -107,7 +107,10 @@ pub fn kinematic(pose: &Pose, a: &Action) -> Pose {
     let keys = |on: bool| if on { 1.0 } else { 0.0 };
     let dir = flat * (keys(a.forward) - keys(a.back)) + right * (keys(a.right) - keys(a.left));
     let step = dir.try_normalize().map_or(DVec3::ZERO, |d| d * WALK_SPEED);
-    Pose::new(rotation, pose.position() + step).expect("a rotation times rotations is a rotation")
+    // Re-orthonormalised so thousands of steps (or a caller's pose at the edge
+    // of the tolerance) never drift out of what `Pose::new` accepts.
+    let rotation = DMat3::from_quat(glam::DQuat::from_mat3(&rotation).normalize());
+    Pose::new(rotation, pose.position() + step).unwrap_or(*pose)
 }
 
 #[cfg(test)]
