@@ -25,12 +25,11 @@ struct Row {
 }
 
 /// A frame like the server's: latent noise and a PNG of a rendered view.
-fn sample_frame(i: u64) -> FrameRecord {
-    let world = world::World::generate(1);
+fn sample_frame(world: &world::World, i: u64) -> FrameRecord {
     let k = world::suite::default_intrinsics(64, 64).expect("default camera");
-    let cell = world::agent::spawn_point(&world, None).expect("a spawn");
+    let cell = world::agent::spawn_point(world, None).expect("a spawn");
     let player = world::agent::PlayerState::at_cell(cell, (i * 37 % 360) as f64);
-    let frame = world::render::render(&world, &player.camera(), &k, &world::render::RenderSettings::default());
+    let frame = world::render::render(world, &player.camera(), &k, &world::render::RenderSettings::default());
     FrameRecord {
         meta: FrameMeta { c2w: player.camera().matrix_rows(), time: i, source: "generated".into(), action: Some(vec![1.0, 0.0, 0.0, 0.0, 0.0, 5.0, 0.0]), player: None },
         latent: model::generate::gaussian(i, 4 * 16 * 16),
@@ -65,7 +64,8 @@ fn row(store: &'static str, bytes: usize, mut ms: Vec<f64>, total_s: f64, read_a
 
 pub fn run(frames: usize, json: bool) -> Result<()> {
     let base = dir();
-    let samples: Vec<FrameRecord> = (0..16).map(sample_frame).collect();
+    let world = world::World::generate(1);
+    let samples: Vec<FrameRecord> = (0..16).map(|i| sample_frame(&world, i)).collect();
     let bytes = samples.iter().map(|f| f.encode().len()).sum::<usize>() / samples.len();
     let record = SessionRecord { policy: serde_json::json!({ "kind": "worldpack" }), intrinsics: world::suite::default_intrinsics(64, 64)?, world_seed: None };
 

@@ -116,9 +116,8 @@ fn plan_trajectory(dir: &Path, policies: &[Policy]) -> Result<()> {
     let frusta = poses
         .chunks_exact(16)
         .map(|m| {
-            let rotation = [[m[0], m[1], m[2]], [m[4], m[5], m[6]], [m[8], m[9], m[10]]];
-            let pose = Pose::from_rows(rotation, [m[3], m[7], m[11]])?;
-            Frustum::new(pose, meta.intrinsics)
+            let rows = [0, 1, 2, 3].map(|i| [m[4 * i], m[4 * i + 1], m[4 * i + 2], m[4 * i + 3]]);
+            Frustum::new(Pose::from_matrix_rows(rows)?, meta.intrinsics)
         })
         .collect::<Result<Vec<_>, _>>()
         .context("poses.npy")?;

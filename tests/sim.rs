@@ -45,7 +45,7 @@ fn poses(dir: &Path) -> Vec<Pose> {
     let (shape, data) = world::npy::read::<f64>(&dir.join("poses.npy")).unwrap();
     assert_eq!(&shape[1..], &[4, 4]);
     data.chunks_exact(16)
-        .map(|m| Pose::from_rows([[m[0], m[1], m[2]], [m[4], m[5], m[6]], [m[8], m[9], m[10]]], [m[3], m[7], m[11]]).unwrap())
+        .map(|m| Pose::from_matrix_rows([0, 1, 2, 3].map(|i| [m[4 * i], m[4 * i + 1], m[4 * i + 2], m[4 * i + 3]])).unwrap())
         .collect()
 }
 

@@ -405,12 +405,18 @@ fn frame_ids(p: Result<Path<(u64, u64)>, PathRejection>) -> Res<(u64, u64)> {
     p.map(|Path(v)| v).map_err(|_| ApiError::bad("index", "session ids and frame indices are whole numbers"))
 }
 
-async fn frame(State(st): St, p: Result<Path<(u64, u64)>, PathRejection>) -> Res<Json<Value>> {
+/// A stored frame of a live session, read off the async workers; 404 naming what is missing.
+async fn stored_frame(st: &Arc<AppState>, p: Result<Path<(u64, u64)>, PathRejection>) -> Res<(u64, u64, FrameRecord)> {
     let (id, index) = frame_ids(p)?;
-    slot(&st, id)?;
+    slot(st, id)?;
     let st2 = st.clone();
     let f = blocking(move || st2.engine.store.frame(id, index).map_err(ApiError::from)).await?;
     let f = f.ok_or_else(|| ApiError::not_found("index", format!("session {id} has no frame {index}")))?;
+    Ok((id, index, f))
+}
+
+async fn frame(State(st): St, p: Result<Path<(u64, u64)>, PathRejection>) -> Res<Json<Value>> {
+    let (id, index, f) = stored_frame(&st, p).await?;
     let pose = crate::session::pose_of(&f.meta)?;
     Ok(Json(json!({
         "session": id, "index": index, "time": f.meta.time, "source": f.meta.source, "pose": pose_json(&pose),
@@ -420,12 +426,16 @@ async fn frame(State(st): St, p: Result<Path<(u64, u64)>, PathRejection>) -> Res
 }
 
 async fn frame_image(State(st): St, p: Result<Path<(u64, u64)>, PathRejection>) -> Res<Response> {
-    let (id, index) = frame_ids(p)?;
-    slot(&st, id)?;
-    let st2 = st.clone();
-    let f = blocking(move || st2.engine.store.frame(id, index).map_err(ApiError::from)).await?;
-    let f = f.ok_or_else(|| ApiError::not_found("index", format!("session {id} has no frame {index}")))?;
+    let (_, _, f) = stored_frame(&st, p).await?;
     Ok(([(header::CONTENT_TYPE, "image/png")], f.png).into_response())
+}
+
+async fn frame_depth(State(st): St, p: Result<Path<(u64, u64)>, PathRejection>) -> Res<Response> {
+    let (id, index, f) = stored_frame(&st, p).await?;
+    if f.depth_png16.is_empty() {
+        return Err(ApiError::not_found("depth", format!("frame {index} of session {id} was stored without depth")));
+    }
+    Ok(([(header::CONTENT_TYPE, "image/png")], f.depth_png16).into_response())
 }
 
 #[cfg(test)]
@@ -436,16 +446,4 @@ mod tests {
         assert_eq!(doc["openapi"], "3.1.0");
         assert_eq!(doc["paths"].as_object().unwrap().len(), 10);
     }
-}
-
-async fn frame_depth(State(st): St, p: Result<Path<(u64, u64)>, PathRejection>) -> Res<Response> {
-    let (id, index) = frame_ids(p)?;
-    slot(&st, id)?;
-    let st2 = st.clone();
-    let f = blocking(move || st2.engine.store.frame(id, index).map_err(ApiError::from)).await?;
-    let f = f.ok_or_else(|| ApiError::not_found("index", format!("session {id} has no frame {index}")))?;
-    if f.depth_png16.is_empty() {
-        return Err(ApiError::not_found("depth", format!("frame {index} of session {id} was stored without depth")));
-    }
-    Ok(([(header::CONTENT_TYPE, "image/png")], f.depth_png16).into_response())
 }

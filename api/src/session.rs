@@ -36,8 +36,7 @@ pub fn policy_of(spec: &serde_json::Value) -> Result<Policy, ApiError> {
 }
 
 pub fn pose_of(meta: &FrameMeta) -> Result<Pose, ApiError> {
-    let m = meta.c2w;
-    Ok(Pose::from_rows([[m[0][0], m[0][1], m[0][2]], [m[1][0], m[1][1], m[1][2]], [m[2][0], m[2][1], m[2][2]]], [m[0][3], m[1][3], m[2][3]])?)
+    Ok(Pose::from_matrix_rows(meta.c2w)?)
 }
 
 impl Session {

@@ -73,6 +73,13 @@ impl Pose {
         Pose { rotation: rt * self.rotation, position: rt * (self.position - reference.position) }
     }
 
+    /// The inverse of [`Pose::matrix_rows`]: a row-major 4×4 camera-to-world
+    /// matrix (the last row is ignored).
+    pub fn from_matrix_rows(m: [[f64; 4]; 4]) -> Result<Self, InputError> {
+        let r = |i: usize| [m[i][0], m[i][1], m[i][2]];
+        Self::from_rows([r(0), r(1), r(2)], [m[0][3], m[1][3], m[2][3]])
+    }
+
     /// 4×4 camera-to-world matrix, row-major.
     pub fn matrix_rows(&self) -> [[f64; 4]; 4] {
         let m = DMat4::from_cols(

@@ -123,9 +123,7 @@ fn packing_a_plan_reproduces_the_reference_inputs() {
 }
 
 fn pose(v: &Value) -> Pose {
-    let m: Vec<Vec<f64>> = serde_json::from_value(v.clone()).unwrap();
-    Pose::from_rows([[m[0][0], m[0][1], m[0][2]], [m[1][0], m[1][1], m[1][2]], [m[2][0], m[2][1], m[2][2]]], [m[0][3], m[1][3], m[2][3]])
-        .unwrap()
+    Pose::from_matrix_rows(serde_json::from_value(v.clone()).unwrap()).unwrap()
 }
 
 #[test]
