@@ -7,6 +7,7 @@ mod bench_step;
 mod demo;
 mod geometry;
 mod plan;
+mod probe;
 mod sim;
 
 use std::io::Read;
@@ -73,6 +74,48 @@ enum Command {
     Sim {
         #[command(subcommand)]
         what: SimCommand,
+    },
+    /// The memory probe: teacher-forced next-frame prediction on a suite's return legs, for each trained
+    /// variant, the WorldPack weights on recency contexts, and the copy and reproject references.
+    Probe {
+        /// A suite from `worldpack sim loopnav` (test seeds).
+        #[arg(long)]
+        suite: PathBuf,
+        /// A folder of variant model folders: baseline/ (required), nearest_frame_packing/, memory_retrieval/, worldpack/.
+        #[arg(long, default_value = "fixtures/variants")]
+        models: PathBuf,
+        /// More WorldPack-policy models to compare, as NAME=DIR (e.g. other sizes).
+        #[arg(long = "extra", value_parser = parse_named_path)]
+        extra: Vec<(String, PathBuf)>,
+        /// Sampler steps per predicted frame.
+        #[arg(long, default_value_t = 10, value_parser = clap::value_parser!(u64).range(1..=1000))]
+        steps: u64,
+        /// Also run the WorldPack variant at these step counts (comma-separated).
+        #[arg(long, value_delimiter = ',')]
+        sweep_steps: Vec<usize>,
+        /// Sampler: ddim (deterministic) or ancestral.
+        #[arg(long, default_value = "ddim", value_parser = parse_method)]
+        method: model::Method,
+        /// Score every n-th return-leg frame.
+        #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u64).range(1..=10_000))]
+        stride: u64,
+        /// Frames predicted per denoiser call.
+        #[arg(long, default_value_t = 16, value_parser = clap::value_parser!(u64).range(1..=1024))]
+        batch: u64,
+        /// Batch-1 predictions timed per row for the latency column.
+        #[arg(long, default_value_t = 20, value_parser = clap::value_parser!(u64).range(1..=10_000))]
+        latency_calls: u64,
+        /// Only the first n trajectories of the suite.
+        #[arg(long)]
+        limit: Option<usize>,
+        #[arg(long, default_value = "cpu", value_parser = parse_provider)]
+        provider: model::Provider,
+        /// Intra-op threads per model session.
+        #[arg(long, default_value_t = 2)]
+        threads: usize,
+        /// Write the summary and every frame's scores here (JSON).
+        #[arg(long)]
+        out: Option<PathBuf>,
     },
     /// Write each trajectory's context plans (plan-<policy>.npy) beside a suite or dataset, for training.
     Plan {
@@ -156,6 +199,13 @@ fn parse_provider(s: &str) -> Result<model::Provider, String> {
 
 fn parse_method(s: &str) -> Result<model::Method, String> {
     s.parse()
+}
+
+fn parse_named_path(s: &str) -> Result<(String, PathBuf), String> {
+    match s.split_once('=') {
+        Some((name, dir)) if !name.is_empty() && !dir.is_empty() => Ok((name.to_string(), PathBuf::from(dir))),
+        _ => Err(format!("expected NAME=DIR, got {s:?}")),
+    }
 }
 
 fn parse_pixel(s: &str) -> Result<(u32, u32), String> {
@@ -322,6 +372,27 @@ fn main() -> ExitCode {
                 ..api::Config::default()
             };
             report(serve(config), "serve")
+        }
+        Command::Probe { suite, models, extra, steps, sweep_steps, method, stride, batch, latency_calls, limit, provider, threads, out } => {
+            if let Some(bad) = sweep_steps.iter().find(|&&n| n == 0 || n > 1000) {
+                eprintln!("worldpack probe: --sweep-steps must lie in 1..=1000, got {bad}");
+                return ExitCode::from(2);
+            }
+            let options = probe::Options {
+                suite,
+                models,
+                extra,
+                steps: steps as usize,
+                sweep_steps,
+                method,
+                stride: stride as usize,
+                batch: batch as usize,
+                latency_calls: latency_calls as usize,
+                limit,
+                runtime: model::RuntimeOptions { provider, threads },
+                out,
+            };
+            report(probe::run(&options), "probe")
         }
         Command::Plan { data, policies, keep_last } => report(plan::run(&data, &policies, keep_last), "plan"),
         Command::Geometry { input } => {

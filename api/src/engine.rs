@@ -182,14 +182,8 @@ pub fn encode_png(rgb: &[u8], w: u32, h: u32) -> Vec<u8> {
 
 /// The denoiser layout whose slots are the policy's packing, tier by tier.
 pub fn layout_for(m: &Model, policy: &Policy) -> Result<String, ApiError> {
-    let want: Vec<(u32, usize)> = policy.packing.tiers().iter().map(|t| (t.rate, t.slots)).collect();
-    m.manifest()
-        .denoiser
-        .layouts
-        .iter()
-        .find(|l| l.slots.iter().map(|s| (s.rate, s.count)).collect::<Vec<_>>() == want)
-        .map(|l| l.name.clone())
-        .ok_or_else(|| {
-            ApiError::bad("policy", format!("the model has no context layout with slots {want:?} (rate, count); its layouts fit baseline (4x1) and worldpack (2x1, 4x4, 16x16) packings"))
-        })
+    m.manifest().layout_for_packing(&policy.packing).map(|l| l.name.clone()).ok_or_else(|| {
+        let want: Vec<(u32, usize)> = policy.packing.tiers().iter().map(|t| (t.rate, t.slots)).collect();
+        ApiError::bad("policy", format!("the model has no context layout with slots {want:?} (rate, count); its layouts fit baseline (4x1) and worldpack (2x1, 4x4, 16x16) packings"))
+    })
 }

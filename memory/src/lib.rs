@@ -30,5 +30,5 @@ pub use error::InputError;
 pub use frustum::Frustum;
 pub use index::{FrameMemory, SelectionStats};
 pub use overlap::Estimator;
-pub use policy::{ContextPlan, LatentGrid, MemoryFrame, Packing, Policy, PolicyKind, PolicySpec, select};
+pub use policy::{ContextPlan, LatentGrid, MemoryFrame, Packing, Policy, PolicyKind, PolicySpec, Ranking, ScoreWeights, select};
 pub use pose::{AngleUnit, Pose, Pose5, Pose5Convention};

@@ -111,6 +111,9 @@ impl LayoutSpec {
 #[derive(Clone, Debug, Deserialize)]
 pub struct DenoiserSpec {
     pub patch: u32,
+    /// Trainable parameters, as the export counted them.
+    #[serde(default)]
+    pub parameters: Option<u64>,
     pub rates: Vec<u32>,
     pub layouts: Vec<LayoutSpec>,
 }
@@ -214,6 +217,12 @@ impl Manifest {
     /// The denoiser layout called `name` (`worldpack`, `baseline`, ...).
     pub fn layout(&self, name: &str) -> Option<&LayoutSpec> {
         self.denoiser.layouts.iter().find(|l| l.name == name)
+    }
+
+    /// The layout whose slots are `packing`'s tiers in order (rate and count).
+    pub fn layout_for_packing(&self, packing: &memory::Packing) -> Option<&LayoutSpec> {
+        let want: Vec<(u32, usize)> = packing.tiers().iter().map(|t| (t.rate, t.slots)).collect();
+        self.denoiser.layouts.iter().find(|l| l.slots.iter().map(|s| (s.rate, s.count)).collect::<Vec<_>>() == want)
     }
 }
 

@@ -39,6 +39,16 @@ def main() -> None:
     p.add_argument("--minutes", type=float)
     p.add_argument("--init-from", type=Path, help="fine-tune from this CDiT checkpoint (its EMA weights)")
 
+    p = sub.add_parser("variants", help="the paper's order: the 4-frame baseline from scratch, then nearest frame "
+                       "packing, memory retrieval and WorldPack each fine-tuned from it (resumable, one stage at a time)")
+    common(p)
+    p.add_argument("--baseline-steps", type=int, default=20000)
+    p.add_argument("--fraction", type=float, default=0.2, help="each fine-tune's steps as a fraction of the baseline's (paper: 200k / 1M)")
+    p.add_argument("--batch", type=int, default=32)
+    p.add_argument("--lr", type=float, default=3e-4)
+    p.add_argument("--ema", type=float, default=0.999)
+    p.add_argument("--minutes", type=float, help="wall-time budget for this sitting, shared by the stages")
+
     p = sub.add_parser("export", help="write ONNX graphs, manifest.json and references to --out")
     common(p, data=False)
     p.add_argument("--policy", default="worldpack", help="which checkpoint: run/cdit-<policy>.pt")
@@ -63,6 +73,8 @@ def main() -> None:
             train.train_autoencoder(a.data, a.run, 4000, 32, 1e-3, a.device, a.minutes)
         train.encode(a.data, a.run, a.device)  # skips trajectories already cached
         train.train_cdit(a.data, a.run, a.policy, a.steps, a.batch, a.lr, a.ema, a.device, a.minutes, a.init_from)
+    elif a.stage == "variants":
+        train.train_variants(a.data, a.run, a.baseline_steps, a.fraction, a.batch, a.lr, a.ema, a.device, a.minutes)
     elif a.stage == "export":
         from . import export
 

@@ -64,7 +64,7 @@ def train_autoencoder(data: Path, run: Path, steps: int, batch: int, lr: float, 
         step = state["step"]
         print(f"resuming the autoencoder at step {step}")
     rng = np.random.default_rng(step)
-    deadline = time.time() + minutes * 60 if minutes else math.inf
+    deadline = time.time() + minutes * 60 if minutes is not None else math.inf
     bar = tqdm(total=steps, initial=step, desc="autoencoder", unit="step")
     while step < steps and time.time() < deadline:
         x = torch.from_numpy(frames.batch(rng, batch)).to(dev)
@@ -172,7 +172,7 @@ def train_cdit(data: Path, run: Path, policy: str, steps: int, batch: int, lr: f
     ema.requires_grad_(False)
     rng = np.random.default_rng(1000 + step)
     torch.manual_seed(1000 + step)
-    deadline = time.time() + minutes * 60 if minutes else math.inf
+    deadline = time.time() + minutes * 60 if minutes is not None else math.inf
     bar = tqdm(total=steps, initial=step, desc=f"cdit {policy}", unit="step")
     started, seen = time.time(), 0
     while step < steps and time.time() < deadline:
@@ -202,3 +202,38 @@ def train_cdit(data: Path, run: Path, policy: str, steps: int, batch: int, lr: f
     bar.close()
     save(ckpt, model=model.state_dict(), ema=ema.state_dict(), opt=opt.state_dict(), step=step, policy=policy)
     print(f"cdit {policy} at step {step} ({seen / max(time.time() - started, 1e-9):.1f} samples/s this run)")
+
+
+FINE_TUNED = ["nearest_frame_packing", "memory_retrieval", "worldpack"]
+
+
+def checkpoint_step(path: Path) -> int:
+    return int(torch.load(path, map_location="cpu")["step"]) if path.exists() else 0
+
+
+def train_variants(data: Path, run: Path, baseline_steps: int, fraction: float, batch: int, lr: float, ema_decay: float,
+                   device: str, minutes: float | None) -> None:
+    """The paper's training order. Each stage resumes its own checkpoint; a
+    sitting that runs out of `minutes` stops after checkpointing and the next
+    call carries on where it stopped. Fine-tunes start only from a finished
+    baseline, so all three start from the same weights."""
+    if not 0 < fraction <= 1:
+        raise SystemExit(f"--fraction: must be in (0, 1], got {fraction}")
+    deadline = time.time() + minutes * 60 if minutes is not None else math.inf
+    left = lambda: None if deadline == math.inf else max(0.0, (deadline - time.time()) / 60)
+    if not (run / "autoencoder.pt").exists():
+        train_autoencoder(data, run, 4000, 32, 1e-3, device, left())
+    encode(data, run, device)
+    base = run / "cdit-baseline.pt"
+    train_cdit(data, run, "baseline", baseline_steps, batch, lr, ema_decay, device, left(), None)
+    if checkpoint_step(base) < baseline_steps:
+        print(f"baseline at step {checkpoint_step(base)} of {baseline_steps}: run again to continue")
+        return
+    fine_steps = max(1, int(round(fraction * baseline_steps)))
+    for policy in FINE_TUNED:
+        if left() == 0:
+            print("out of time for this sitting: run again to continue")
+            return
+        train_cdit(data, run, policy, fine_steps, batch, lr, ema_decay, device, left(), base)
+    done = {p: checkpoint_step(run / f"cdit-{p}.pt") for p in ["baseline", *FINE_TUNED]}
+    print("variants at steps " + ", ".join(f"{k} {v}" for k, v in done.items()))

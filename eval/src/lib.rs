@@ -1,0 +1,9 @@
+//! Measuring WorldPack: image metrics, trajectory-level bootstrap
+//! intervals, the depth-reprojection reference, suite reading, and the
+//! teacher-forced memory probe (see docs/probe.md).
+
+pub mod metrics;
+pub mod probe;
+pub mod reproject;
+pub mod stats;
+pub mod suite;

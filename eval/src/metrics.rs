@@ -1,0 +1,121 @@
+//! Image metrics on 8-bit RGB frames, in LoopNav's definitions: PSNR over
+//! all channels, and SSIM with an 11×11 Gaussian window (σ = 1.5) over the
+//! window positions that fit inside the image, averaged over channels.
+
+/// PSNR is capped here so a pixel-identical pair (a frame copied while the
+/// agent stands still) does not turn a mean into infinity.
+pub const PSNR_CAP_DB: f64 = 100.0;
+
+const WINDOW: usize = 11;
+const SIGMA: f64 = 1.5;
+const C1: f64 = (0.01 * 255.0) * (0.01 * 255.0);
+const C2: f64 = (0.03 * 255.0) * (0.03 * 255.0);
+
+/// Peak signal-to-noise ratio in dB for a peak of 255.
+pub fn psnr(a: &[u8], b: &[u8]) -> f64 {
+    assert_eq!(a.len(), b.len(), "psnr: images differ in size");
+    let se: f64 = a.iter().zip(b).map(|(&x, &y)| (x as f64 - y as f64).powi(2)).sum();
+    let mse = se / a.len().max(1) as f64;
+    if mse == 0.0 { PSNR_CAP_DB } else { (10.0 * (255.0 * 255.0 / mse).log10()).min(PSNR_CAP_DB) }
+}
+
+fn gaussian_window() -> [f64; WINDOW] {
+    let mut w = [0.0; WINDOW];
+    let c = (WINDOW / 2) as f64;
+    for (i, v) in w.iter_mut().enumerate() {
+        *v = (-((i as f64 - c).powi(2)) / (2.0 * SIGMA * SIGMA)).exp();
+    }
+    let sum: f64 = w.iter().sum();
+    w.map(|v| v / sum)
+}
+
+/// Separable "valid" filtering of one plane: output is (w−10)×(h−10).
+fn filter_valid(plane: &[f64], w: usize, h: usize, k: &[f64; WINDOW]) -> Vec<f64> {
+    let (ow, oh) = (w + 1 - WINDOW, h + 1 - WINDOW);
+    let mut rows = vec![0.0; ow * h];
+    for y in 0..h {
+        for x in 0..ow {
+            rows[y * ow + x] = (0..WINDOW).map(|i| k[i] * plane[y * w + x + i]).sum();
+        }
+    }
+    let mut out = vec![0.0; ow * oh];
+    for y in 0..oh {
+        for x in 0..ow {
+            out[y * ow + x] = (0..WINDOW).map(|i| k[i] * rows[(y + i) * ow + x]).sum();
+        }
+    }
+    out
+}
+
+/// Mean SSIM of two interleaved RGB images of `width`×`height`. `None` when
+/// the image is smaller than the window.
+pub fn ssim(a: &[u8], b: &[u8], width: usize, height: usize) -> Option<f64> {
+    assert_eq!(a.len(), b.len(), "ssim: images differ in size");
+    assert_eq!(a.len(), width * height * 3, "ssim: not an RGB image of the given size");
+    if width < WINDOW || height < WINDOW {
+        return None;
+    }
+    let k = gaussian_window();
+    let mut total = 0.0;
+    for c in 0..3 {
+        let x: Vec<f64> = a.iter().skip(c).step_by(3).map(|&v| v as f64).collect();
+        let y: Vec<f64> = b.iter().skip(c).step_by(3).map(|&v| v as f64).collect();
+        let prod = |p: &[f64], q: &[f64]| p.iter().zip(q).map(|(u, v)| u * v).collect::<Vec<f64>>();
+        let mx = filter_valid(&x, width, height, &k);
+        let my = filter_valid(&y, width, height, &k);
+        let sxx = filter_valid(&prod(&x, &x), width, height, &k);
+        let syy = filter_valid(&prod(&y, &y), width, height, &k);
+        let sxy = filter_valid(&prod(&x, &y), width, height, &k);
+        let n = mx.len();
+        let mut sum = 0.0;
+        for i in 0..n {
+            let (mx, my) = (mx[i], my[i]);
+            let (vx, vy, cxy) = (sxx[i] - mx * mx, syy[i] - my * my, sxy[i] - mx * my);
+            sum += ((2.0 * mx * my + C1) * (2.0 * cxy + C2)) / ((mx * mx + my * my + C1) * (vx + vy + C2));
+        }
+        total += sum / n as f64;
+    }
+    Some(total / 3.0)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn noise_image(seed: u64, n: usize) -> Vec<u8> {
+        let mut rng = memory::rng::SplitMix64::new(seed);
+        (0..n).map(|_| (rng.next_u64() >> 56) as u8).collect()
+    }
+
+    #[test]
+    fn psnr_matches_the_definition_and_caps_identical_images() {
+        let a = vec![100u8; 48];
+        let mut b = a.clone();
+        b[0] = 110; // one error of 10 over 48 values: mse 100/48
+        let want = 10.0 * (255.0f64 * 255.0 / (100.0 / 48.0)).log10();
+        assert!((psnr(&a, &b) - want).abs() < 1e-12);
+        assert_eq!(psnr(&a, &a), PSNR_CAP_DB);
+    }
+
+    #[test]
+    fn ssim_is_one_for_identical_images_and_falls_with_noise() {
+        let (w, h) = (32, 24);
+        let a = noise_image(1, w * h * 3);
+        assert!((ssim(&a, &a, w, h).unwrap() - 1.0).abs() < 1e-12);
+        let mut rng = memory::rng::SplitMix64::new(2);
+        let slightly: Vec<u8> = a.iter().map(|&v| v.saturating_add((rng.next_u64() % 8) as u8)).collect();
+        let other = noise_image(3, w * h * 3);
+        let s1 = ssim(&a, &slightly, w, h).unwrap();
+        let s2 = ssim(&a, &other, w, h).unwrap();
+        assert!(s1 < 1.0 && s1 > 0.8, "{s1}");
+        assert!(s2 < 0.1, "{s2}");
+        assert!(ssim(&a[..10 * 10 * 3], &a[..10 * 10 * 3], 10, 10).is_none());
+    }
+
+    #[test]
+    fn window_sums_to_one_and_is_symmetric() {
+        let k = gaussian_window();
+        assert!((k.iter().sum::<f64>() - 1.0).abs() < 1e-12);
+        assert!((0..WINDOW).all(|i| (k[i] - k[WINDOW - 1 - i]).abs() < 1e-15));
+    }
+}

@@ -1,0 +1,272 @@
+//! The memory probe: one-step, teacher-forced next-frame prediction on the
+//! return legs of a suite. Every earlier frame is ground truth, so a row's
+//! score says only how well it uses what it is shown — its weights and its
+//! context selection — with no compounding error from its own rollouts.
+
+use std::time::Instant;
+
+use memory::{ContextPlan, Estimator, FrameMemory, Frustum, MemoryFrame, Packing, Policy, PolicyKind, Ranking, ScoreWeights};
+use model::generate::{Conditioning, frame_to_tensor, tensor_to_frame};
+use model::pack::{ContextFrame, pack, stack};
+use model::{Model, ModelError, Sampler, Tensor};
+use serde::Serialize;
+
+use crate::metrics::{psnr, ssim};
+use crate::reproject::reproject;
+use crate::suite::{SuiteError, Trajectory};
+
+#[derive(Debug, thiserror::Error)]
+pub enum ProbeError {
+    #[error(transparent)]
+    Suite(#[from] SuiteError),
+    #[error(transparent)]
+    Model(#[from] ModelError),
+    #[error("{0}")]
+    Invalid(String),
+}
+
+/// How a row predicts frame `t` from frames `0..t`.
+pub enum Predictor<'a> {
+    /// A model with a context policy; the policy's packing must match one of
+    /// the model's layouts.
+    Model { model: &'a Model, policy: Policy, sampler: Sampler },
+    /// The stored frame of largest overlap with the target view, as is.
+    Copy,
+    /// That frame warped into the target pose with its depth.
+    Reproject,
+}
+
+pub struct Row<'a> {
+    pub name: String,
+    pub predictor: Predictor<'a>,
+}
+
+/// Only overlap counts when picking the frame to copy or warp.
+pub fn best_overlap_policy() -> Policy {
+    Policy {
+        kind: PolicyKind::MemoryRetrieval,
+        ranking: Ranking::Score,
+        packing: Packing::uncompressed(1),
+        estimator: Estimator::Exact,
+        weights: ScoreWeights { overlap: 1.0, recency: 0.0 },
+        keep_last: false,
+    }
+}
+
+#[derive(Clone, Copy, Debug, Serialize)]
+pub struct FrameScore {
+    pub t: usize,
+    pub psnr: f64,
+    pub ssim: f64,
+}
+
+/// One trajectory's scores: `rows[i]` belongs to the i-th row, frames in the
+/// same order for every row (so differences pair up).
+#[derive(Clone, Debug, Serialize)]
+pub struct TrajectoryScores {
+    pub dir: String,
+    pub task: String,
+    pub range: i32,
+    pub rows: Vec<Vec<FrameScore>>,
+}
+
+pub struct Settings {
+    pub stride: usize,
+    pub batch: usize,
+    pub seed: u64,
+}
+
+fn policy_of<'a>(row: &'a Row, copy: &'a Policy) -> &'a Policy {
+    match &row.predictor {
+        Predictor::Model { policy, .. } => policy,
+        Predictor::Copy | Predictor::Reproject => copy,
+    }
+}
+
+/// Every row's plan for every target, from one pass over the trajectory.
+fn plans(traj: &Trajectory, rows: &[Row], targets: &[usize]) -> Result<Vec<Vec<ContextPlan>>, ProbeError> {
+    let copy = best_overlap_policy();
+    let frusta = traj
+        .poses
+        .iter()
+        .map(|p| Frustum::new(*p, traj.intrinsics))
+        .collect::<Result<Vec<_>, _>>()
+        .map_err(|e| ProbeError::Invalid(format!("{}: {e}", traj.entry.dir)))?;
+    let mut out: Vec<Vec<ContextPlan>> = rows.iter().map(|_| Vec::with_capacity(targets.len())).collect();
+    let mut previous: Vec<Option<ContextPlan>> = rows.iter().map(|_| None).collect();
+    let mut store = FrameMemory::new();
+    let mut next = targets.iter().peekable();
+    for (t, frustum) in frusta.iter().enumerate() {
+        if next.peek() == Some(&&t) {
+            next.next();
+            for (i, row) in rows.iter().enumerate() {
+                let (plan, _) = store.select(policy_of(row, &copy), frustum, previous[i].as_ref());
+                previous[i] = Some(plan.clone());
+                out[i].push(plan);
+            }
+        }
+        if next.peek().is_none() {
+            break;
+        }
+        store
+            .insert(MemoryFrame { id: t as u64, time: t as u64, frustum: frustum.clone() })
+            .map_err(|e| ProbeError::Invalid(format!("{}: frame {t}: {e}", traj.entry.dir)))?;
+    }
+    Ok(out)
+}
+
+/// The scaled latents of every frame of `traj`.
+pub fn encode_all(m: &Model, traj: &Trajectory) -> Result<Vec<Vec<f32>>, ProbeError> {
+    let img = &m.manifest().image;
+    let k = &traj.intrinsics;
+    let mut latents = Vec::with_capacity(traj.len());
+    for chunk in (0..traj.len()).collect::<Vec<_>>().chunks(32) {
+        let tensors = chunk
+            .iter()
+            .map(|&t| frame_to_tensor(traj.frame(t), k.width, k.height, k, img.width as u32, img.height as u32).map(|p| p.0))
+            .collect::<Result<Vec<_>, _>>()?;
+        let mut shape = tensors[0].shape.clone();
+        shape[0] = tensors.len();
+        let batch = Tensor::new(shape, tensors.into_iter().flat_map(|t| t.data).collect());
+        let out = m.encode(&batch)?;
+        let per = out.data.len() / chunk.len();
+        latents.extend(out.data.chunks_exact(per).map(<[f32]>::to_vec));
+    }
+    Ok(latents)
+}
+
+fn best_frame(plan: &ContextPlan) -> Option<usize> {
+    plan.selected().next().map(|(_, f)| f.id as usize)
+}
+
+/// Predicts `targets` of `traj` for one model row, `batch` at a time.
+fn predict_model(
+    m: &Model,
+    policy: &Policy,
+    sampler: &Sampler,
+    traj: &Trajectory,
+    latents: &[Vec<f32>],
+    targets: &[usize],
+    plans: &[ContextPlan],
+    settings: &Settings,
+    mut done: impl FnMut(usize, Vec<u8>),
+) -> Result<(), ProbeError> {
+    let manifest = m.manifest();
+    let layout = manifest
+        .layout_for_packing(&policy.packing)
+        .ok_or_else(|| ProbeError::Invalid(format!("model {} has no layout for the {:?} packing", m.dir().display(), policy.kind)))?;
+    let frame = |id: u64| latents.get(id as usize).map(|l| ContextFrame { latent: l, time: id, pose: &traj.poses[id as usize] });
+    for (b, chunk) in targets.chunks(settings.batch.max(1)).enumerate() {
+        let at = b * settings.batch.max(1);
+        let packed = chunk
+            .iter()
+            .enumerate()
+            .map(|(j, &t)| pack(layout, &manifest.autoencoder.latent, &plans[at + j], t as u64, &traj.poses[t], frame))
+            .collect::<Result<Vec<_>, _>>()?;
+        let contexts: Vec<&[(String, Tensor)]> = packed.iter().map(|p| p.tensors.as_slice()).collect();
+        let context = stack(&contexts);
+        let action = Tensor::new(vec![chunk.len(), 7], chunk.iter().flat_map(|&t| traj.actions[t]).collect());
+        let rel_time = Tensor::new(vec![chunk.len()], packed.iter().map(|p| p.rel_time).collect());
+        let cond = Conditioning { context: &context, action: &action, rel_time: &rel_time };
+        // The same noise for a target in every row: seeded by trajectory position, not by row.
+        let seed = settings.seed ^ (chunk[0] as u64).wrapping_mul(0x9e37_79b9_7f4a_7c15);
+        let latent = m.sample(&layout.name, &cond, sampler, seed)?;
+        let images = m.decode(&latent)?;
+        for (j, &t) in chunk.iter().enumerate() {
+            done(t, tensor_to_frame(&images, j)?);
+        }
+    }
+    Ok(())
+}
+
+/// Scores every row on the return legs of one trajectory. `latents_for(m)`
+/// gives the trajectory's latents under model `m` (rows sharing a model
+/// share them). `progress(n)` is told of each `n` frames scored.
+pub fn probe_trajectory(
+    traj: &Trajectory,
+    rows: &[Row],
+    settings: &Settings,
+    latents_for: &mut dyn FnMut(&Model) -> Result<std::rc::Rc<Vec<Vec<f32>>>, ProbeError>,
+    progress: &dyn Fn(usize),
+) -> Result<TrajectoryScores, ProbeError> {
+    let targets = traj.return_frames(settings.stride);
+    let plans = plans(traj, rows, &targets)?;
+    let (w, h) = (traj.intrinsics.width as usize, traj.intrinsics.height as usize);
+    let score = |t: usize, predicted: &[u8]| {
+        let truth = traj.frame(t);
+        FrameScore { t, psnr: psnr(predicted, truth), ssim: ssim(predicted, truth, w, h).unwrap_or(f64::NAN) }
+    };
+    let mut scores = Vec::with_capacity(rows.len());
+    for (row, plans) in rows.iter().zip(&plans) {
+        let mut out = Vec::with_capacity(targets.len());
+        match &row.predictor {
+            Predictor::Model { model, policy, sampler } => {
+                let latents = latents_for(model)?;
+                if (model.manifest().image.width, model.manifest().image.height) != (w, h) {
+                    return Err(ProbeError::Invalid(format!(
+                        "model {} makes {}x{} frames but the suite has {w}x{h}",
+                        model.dir().display(),
+                        model.manifest().image.width,
+                        model.manifest().image.height
+                    )));
+                }
+                predict_model(model, policy, sampler, traj, &latents, &targets, plans, settings, |t, img| {
+                    out.push(score(t, &img));
+                    progress(1);
+                })?;
+            }
+            Predictor::Copy | Predictor::Reproject => {
+                for (&t, plan) in targets.iter().zip(plans) {
+                    let src = best_frame(plan).unwrap_or(t - 1);
+                    let img = match row.predictor {
+                        Predictor::Copy => traj.frame(src).to_vec(),
+                        _ => reproject(traj.frame(src), traj.depth(src), &traj.intrinsics, &traj.poses[src], &traj.poses[t]).0,
+                    };
+                    out.push(score(t, &img));
+                    progress(1);
+                }
+            }
+        }
+        scores.push(out);
+    }
+    Ok(TrajectoryScores { dir: traj.entry.dir.clone(), task: traj.entry.task.clone(), range: traj.entry.range, rows: scores })
+}
+
+/// Median wall time (ms) of one prediction, batch 1, selection through
+/// decoded frame, over the first `calls` return frames of `traj`.
+pub fn latency_ms(traj: &Trajectory, row: &Row, latents: &[Vec<f32>], calls: usize) -> Result<f64, ProbeError> {
+    let targets: Vec<usize> = traj.return_frames(1).into_iter().take(calls.max(1)).collect();
+    let copy = best_overlap_policy();
+    let policy = policy_of(row, &copy);
+    let frusta = traj.poses.iter().map(|p| Frustum::new(*p, traj.intrinsics)).collect::<Result<Vec<_>, _>>().map_err(|e| ProbeError::Invalid(e.to_string()))?;
+    let mut store = FrameMemory::new();
+    let last = *targets.last().unwrap_or(&0);
+    let mut times = Vec::new();
+    let settings = Settings { stride: 1, batch: 1, seed: 0 };
+    for t in 0..=last {
+        if targets.contains(&t) {
+            let start = Instant::now();
+            let (plan, _) = store.select(policy, &frusta[t], None);
+            match &row.predictor {
+                Predictor::Model { model, policy, sampler } => {
+                    predict_model(model, policy, sampler, traj, latents, &[t], &[plan], &settings, |_, img| {
+                        std::hint::black_box(img);
+                    })?;
+                }
+                Predictor::Copy => {
+                    std::hint::black_box(traj.frame(best_frame(&plan).unwrap_or(t - 1)).to_vec());
+                }
+                Predictor::Reproject => {
+                    let s = best_frame(&plan).unwrap_or(t - 1);
+                    std::hint::black_box(reproject(traj.frame(s), traj.depth(s), &traj.intrinsics, &traj.poses[s], &traj.poses[t]));
+                }
+            }
+            times.push(start.elapsed().as_secs_f64() * 1e3);
+        }
+        store
+            .insert(MemoryFrame { id: t as u64, time: t as u64, frustum: frusta[t].clone() })
+            .map_err(|e| ProbeError::Invalid(e.to_string()))?;
+    }
+    times.sort_by(f64::total_cmp);
+    Ok(times.get(times.len() / 2).copied().unwrap_or(f64::NAN))
+}
