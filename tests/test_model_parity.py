@@ -22,6 +22,8 @@ from worldpack_model.diffusion import Sampler, Schedule, sample  # noqa: E402
 
 MODEL = ROOT / "fixtures" / "small"
 MANIFEST = json.loads((MODEL / "manifest.json").read_text())
+# The trained variants of docs/probe.md (float16-stored weights), checked graph by graph too.
+VARIANTS = sorted(p.parent for p in (ROOT / "fixtures" / "variants").glob("*/manifest.json"))
 TOL = MANIFEST["reference"]["tolerance"]
 
 
@@ -33,25 +35,50 @@ def close(actual, expected, what):
     assert worst <= 0, f"{what}: exceeds |a-b| <= {TOL['abs']} + {TOL['rel']}|b| by {worst:.3g}"
 
 
-def session(file):
-    return ort.InferenceSession(str(MODEL / file), providers=["CPUExecutionProvider"])
+def session(file, model=MODEL):
+    return ort.InferenceSession(str(model / file), providers=["CPUExecutionProvider"])
 
 
-def load(folder):
-    return {p.stem: np.load(p) for p in (MODEL / folder).glob("*.npy")}
+def load(folder, model=MODEL):
+    return {p.stem: np.load(p) for p in (model / folder).glob("*.npy")}
 
 
-def graphs():
+def graphs(manifest=MANIFEST):
     """(graph name, onnx file, io spec) for every exported graph."""
-    ae = MANIFEST["autoencoder"]
+    ae = manifest["autoencoder"]
     out = [("encoder", ae["encoder"]["file"], ae["encoder"]), ("decoder", ae["decoder"]["file"], ae["decoder"])]
-    out += [(f"denoiser_{lay['name']}", lay["file"], lay) for lay in MANIFEST["denoiser"]["layouts"]]
+    out += [(f"denoiser_{lay['name']}", lay["file"], lay) for lay in manifest["denoiser"]["layouts"]]
     return out
 
 
-def run_graph(name, file, spec, arrays):
+def run_graph(name, file, spec, arrays, model=MODEL):
     feed = {s["name"]: arrays[s["name"]] for s in spec["inputs"]}
-    return session(file).run(None, feed)
+    return session(file, model).run(None, feed)
+
+
+def variant_graphs():
+    for model in VARIANTS:
+        manifest = json.loads((model / "manifest.json").read_text())
+        for name, file, spec in graphs(manifest):
+            yield pytest.param(model, manifest, name, file, spec, id=f"{model.name}-{name}")
+
+
+@pytest.mark.parametrize("model,manifest,name,file,spec", list(variant_graphs()))
+def test_variant_graph_matches_pytorch(model, manifest, name, file, spec):
+    arrays = load(manifest["reference"]["graphs"][name], model)
+    for out_spec, got in zip(spec["outputs"], run_graph(name, file, spec, arrays, model)):
+        close(got, arrays[out_spec["name"]], f"{model.name}/{name}.{out_spec['name']}")
+
+
+def test_variants_store_weights_as_float16():
+    for model in VARIANTS:
+        manifest = json.loads((model / "manifest.json").read_text())
+        if not manifest["denoiser"].get("weights_storage", "").startswith("float16"):
+            continue
+        proto = onnx.load(str(model / manifest["denoiser"]["layouts"][0]["file"]), load_external_data=False)
+        halves = [i for i in proto.graph.initializer if i.data_type == onnx.TensorProto.FLOAT16]
+        casts = [n for n in proto.graph.node if n.op_type == "Cast"]
+        assert halves and len(casts) >= len(halves), f"{model.name}: float16 storage declared but not found"
 
 
 @pytest.mark.parametrize("name,file,spec", graphs(), ids=[g[0] for g in graphs()])

@@ -55,6 +55,7 @@ def main() -> None:
     p.add_argument("--layouts", default="worldpack,baseline", help="comma-separated context layouts to export")
     p.add_argument("--data", type=Path, required=True, help="a suite for the reference inputs and metrics (test split)")
     p.add_argument("--out", type=Path, required=True)
+    p.add_argument("--half", action="store_true", help="round the weights to float16 and store them so (half the size)")
 
     a = ap.parse_args()
     import torch
@@ -78,7 +79,7 @@ def main() -> None:
     elif a.stage == "export":
         from . import export
 
-        export.export(a.run, a.policy, a.layouts.split(","), a.data, a.out, a.device)
+        export.export(a.run, a.policy, a.layouts.split(","), a.data, a.out, a.device, a.half)
 
 
 if __name__ == "__main__":

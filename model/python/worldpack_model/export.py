@@ -94,6 +94,35 @@ def share_weights(protos: dict[str, onnx.ModelProto], weights: Path) -> None:
                     entry.key, entry.value = k, v
 
 
+def round_to_half(*modules: nn.Module) -> None:
+    """Rounds every parameter to the nearest float16 value (kept as float32),
+    so that the model the references come from is exactly the one stored."""
+    with torch.no_grad():
+        for m in modules:
+            for p in m.parameters():
+                p.copy_(p.half().float())
+
+
+def store_half(proto: onnx.ModelProto) -> None:
+    """Stores each float32 initializer that float16 holds exactly as float16
+    behind a Cast back to float32 (ONNX Runtime folds the Cast when it loads
+    the graph), halving the file. Initializers that would lose a bit, such as
+    folded constants, stay float32, so the graph computes what it did."""
+    casts = []
+    for init in proto.graph.initializer:
+        if init.data_type != onnx.TensorProto.FLOAT:
+            continue
+        a = onnx.numpy_helper.to_array(init)
+        if a.size < 256 or not np.array_equal(a.astype(np.float16).astype(np.float32), a):
+            continue
+        name = init.name
+        init.CopyFrom(onnx.numpy_helper.from_array(a.astype(np.float16), name + "__f16"))
+        casts.append(onnx.helper.make_node("Cast", [name + "__f16"], [name], to=onnx.TensorProto.FLOAT, name=name + "__cast"))
+    nodes = casts + list(proto.graph.node)  # casts first keeps the graph topologically sorted
+    del proto.graph.node[:]
+    proto.graph.node.extend(nodes)
+
+
 def save_arrays(folder: Path, arrays: dict[str, np.ndarray]) -> None:
     folder.mkdir(parents=True, exist_ok=True)
     for name, a in arrays.items():
@@ -134,7 +163,7 @@ def reference_rows(source: wdata.PlannedLatents, count: int) -> list[tuple[int, 
     return rows
 
 
-def export(run: Path, policy: str, layout_names: list[str], data: Path, out: Path, device: str) -> None:
+def export(run: Path, policy: str, layout_names: list[str], data: Path, out: Path, device: str, half: bool = False) -> None:
     started = time.time()
     cfg = run_config(run)
     dev = pick_device(device)
@@ -149,6 +178,8 @@ def export(run: Path, policy: str, layout_names: list[str], data: Path, out: Pat
     model = CDiT(cfg.cdit)
     model.load_state_dict(ckpt["ema"])
     model.eval()
+    if half:
+        round_to_half(ae, model)
     out.mkdir(parents=True, exist_ok=True)
     ref = out / "reference"
 
@@ -173,6 +204,8 @@ def export(run: Path, policy: str, layout_names: list[str], data: Path, out: Pat
         "decoder": to_onnx(ae.decoder, (raw,), ["latent"], ["image"]),
     }
     for name in ("encoder", "decoder"):
+        if half:
+            store_half(protos[name])
         onnx.save(protos[name], out / f"{name}.onnx")
     save_arrays(ref / "encoder", {"image": image.numpy(), "latent": raw.numpy()})
     save_arrays(ref / "decoder", {"latent": raw.numpy(), "image": decoded.numpy()})
@@ -225,6 +258,9 @@ def export(run: Path, policy: str, layout_names: list[str], data: Path, out: Pat
         })
         if trace_inputs is None:
             trace_inputs = (name, graph, names, arrays)
+    if half:
+        for proto in denoisers.values():
+            store_half(proto)
     share_weights(denoisers, out / "denoiser.weights")
     for name, proto in denoisers.items():
         onnx.save(proto, out / f"denoiser_{name}.onnx")
@@ -280,6 +316,7 @@ def export(run: Path, policy: str, layout_names: list[str], data: Path, out: Pat
             "target_tokens": cfg.cdit.grid ** 2,
             "rates": list(cfg.cdit.rates),
             "weights": "denoiser.weights",
+            "weights_storage": "float16 (parameters rounded to float16 before export; computed in float32)" if half else "float32",
             "layouts": layouts_json,
         },
         "action": {"dim": cfg.cdit.action_dim, "names": ACTION_NAMES[: cfg.cdit.action_dim],
