@@ -5,6 +5,7 @@ mod bench_serve;
 mod bench_store;
 mod bench_step;
 mod demo;
+mod eval;
 mod geometry;
 mod plan;
 mod probe;
@@ -117,6 +118,46 @@ enum Command {
         #[arg(long)]
         out: Option<PathBuf>,
     },
+    /// LoopNav-style evaluation: observe each trajectory's exploration, roll out its return leg
+    /// autoregressively under each policy with its own weights, and score PSNR and SSIM per frame.
+    Eval {
+        /// A suite from `worldpack sim loopnav` (test seeds).
+        #[arg(long)]
+        suite: PathBuf,
+        /// A folder of variant model folders (baseline/, nearest_frame_packing/, memory_retrieval/, worldpack/).
+        #[arg(long, default_value = "fixtures/variants")]
+        models: PathBuf,
+        /// Comma-separated policies; worldmem_greedy runs with the memory_retrieval weights.
+        #[arg(long, value_delimiter = ',', value_parser = plan::parse_policy,
+              default_value = "baseline,nearest_frame_packing,memory_retrieval,worldpack,worldmem_greedy")]
+        policies: Vec<memory::PolicyKind>,
+        /// Leave out the copy and reproject references.
+        #[arg(long)]
+        no_references: bool,
+        /// Sampler steps per generated frame.
+        #[arg(long, default_value_t = 10, value_parser = clap::value_parser!(u64).range(1..=1000))]
+        steps: u64,
+        #[arg(long, default_value = "ddim", value_parser = parse_method)]
+        method: model::Method,
+        /// Generate at most this many frames of each return leg.
+        #[arg(long)]
+        max_frames: Option<usize>,
+        /// Only the first n trajectories of the suite.
+        #[arg(long)]
+        limit: Option<usize>,
+        /// Trajectories generated together per denoiser call.
+        #[arg(long, default_value_t = 32, value_parser = clap::value_parser!(u64).range(1..=1024))]
+        batch: u64,
+        #[arg(long, default_value = "cpu", value_parser = parse_provider)]
+        provider: model::Provider,
+        #[arg(long, default_value_t = 2)]
+        threads: usize,
+        /// Results folder: rows/<row>.json as each row finishes (reused when the settings match), then results.json.
+        #[arg(long, default_value = "runs/eval")]
+        out: PathBuf,
+    },
+    /// PSNR and SSIM of two PNG images, as JSON (the metrics `eval` uses).
+    Compare { a: PathBuf, b: PathBuf },
     /// Write each trajectory's context plans (plan-<policy>.npy) beside a suite or dataset, for training.
     Plan {
         /// A folder written by `worldpack sim dataset` or `sim loopnav`.
@@ -394,6 +435,23 @@ fn main() -> ExitCode {
             };
             report(probe::run(&options), "probe")
         }
+        Command::Eval { suite, models, policies, no_references, steps, method, max_frames, limit, batch, provider, threads, out } => {
+            let options = eval::Options {
+                suite,
+                models,
+                policies,
+                references: !no_references,
+                steps: steps as usize,
+                method,
+                max_frames,
+                limit,
+                batch: batch as usize,
+                runtime: model::RuntimeOptions { provider, threads },
+                out,
+            };
+            report(eval::run(&options), "eval")
+        }
+        Command::Compare { a, b } => report(eval::compare(&a, &b), "compare"),
         Command::Plan { data, policies, keep_last } => report(plan::run(&data, &policies, keep_last), "plan"),
         Command::Geometry { input } => {
             let text = match input {

@@ -5,5 +5,6 @@
 pub mod metrics;
 pub mod probe;
 pub mod reproject;
+pub mod rollout;
 pub mod stats;
 pub mod suite;

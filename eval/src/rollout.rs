@@ -1,0 +1,158 @@
+//! Autoregressive rollouts (the LoopNav protocol): every trajectory's
+//! exploration is observed as ground truth, then the return leg is generated
+//! frame by frame from the known poses and actions, each generated frame
+//! joining the memory that later frames select from. Trajectories run in
+//! lockstep so one denoiser call serves a whole batch of them.
+
+use memory::{ContextPlan, FrameMemory, Frustum, MemoryFrame};
+use model::generate::{Conditioning, tensor_to_frame};
+use model::pack::{ContextFrame, pack, stack};
+use model::Tensor;
+
+use crate::metrics::{psnr, ssim};
+use crate::probe::{FrameScore, Predictor, ProbeError, Row, best_overlap_policy};
+use crate::reproject::reproject;
+use crate::suite::Trajectory;
+
+/// The frames a rollout generates: the return leg, from the returning point,
+/// at most `max_frames` of it.
+pub fn rollout_frames(traj: &Trajectory, max_frames: Option<usize>) -> std::ops::Range<usize> {
+    let start = traj.entry.returning_point.clamp(1, traj.len());
+    let end = max_frames.map_or(traj.len(), |m| (start + m).min(traj.len()));
+    start..end
+}
+
+fn frusta(traj: &Trajectory) -> Result<Vec<Frustum>, ProbeError> {
+    traj.poses
+        .iter()
+        .map(|p| Frustum::new(*p, traj.intrinsics))
+        .collect::<Result<Vec<_>, _>>()
+        .map_err(|e| ProbeError::Invalid(format!("{}: {e}", traj.entry.dir)))
+}
+
+fn observed(frusta: &[Frustum], upto: usize) -> Result<FrameMemory, ProbeError> {
+    let mut store = FrameMemory::new();
+    for (t, f) in frusta.iter().enumerate().take(upto) {
+        store.insert(MemoryFrame { id: t as u64, time: t as u64, frustum: f.clone() }).map_err(|e| ProbeError::Invalid(e.to_string()))?;
+    }
+    Ok(store)
+}
+
+struct Run<'a> {
+    traj: &'a Trajectory,
+    frusta: Vec<Frustum>,
+    store: FrameMemory,
+    latents: Vec<Vec<f32>>,
+    previous: Option<ContextPlan>,
+    next: usize,
+    end: usize,
+    scores: Vec<FrameScore>,
+}
+
+fn score(traj: &Trajectory, t: usize, predicted: &[u8]) -> FrameScore {
+    let (w, h) = (traj.intrinsics.width as usize, traj.intrinsics.height as usize);
+    let truth = traj.frame(t);
+    FrameScore { t, psnr: psnr(predicted, truth), ssim: ssim(predicted, truth, w, h).unwrap_or(f64::NAN) }
+}
+
+/// One row's rollouts over `trajs`. `observed_latents[i]` holds trajectory
+/// i's ground-truth latents under the row's model (unused by the
+/// references). Returns every trajectory's per-frame scores, in frame order.
+pub fn rollout(
+    trajs: &[Trajectory],
+    row: &Row,
+    observed_latents: &[Vec<Vec<f32>>],
+    max_frames: Option<usize>,
+    batch: usize,
+    seed: u64,
+    progress: &dyn Fn(usize),
+) -> Result<Vec<Vec<FrameScore>>, ProbeError> {
+    match &row.predictor {
+        Predictor::Copy | Predictor::Reproject => trajs.iter().map(|t| reference(t, &row.predictor, max_frames, progress)).collect(),
+        Predictor::Model { model, policy, sampler } => {
+            let manifest = model.manifest();
+            let layout = manifest
+                .layout_for_packing(&policy.packing)
+                .ok_or_else(|| ProbeError::Invalid(format!("model {} has no layout for the {:?} packing", model.dir().display(), policy.kind)))?;
+            let mut runs = trajs
+                .iter()
+                .zip(observed_latents)
+                .map(|(traj, lat)| {
+                    let range = rollout_frames(traj, max_frames);
+                    let frusta = frusta(traj)?;
+                    Ok(Run {
+                        store: observed(&frusta, range.start)?,
+                        latents: lat[..range.start].to_vec(),
+                        frusta,
+                        traj,
+                        previous: None,
+                        next: range.start,
+                        end: range.end,
+                        scores: Vec::with_capacity(range.len()),
+                    })
+                })
+                .collect::<Result<Vec<_>, ProbeError>>()?;
+            let mut step = 0u64;
+            loop {
+                let active: Vec<usize> = (0..runs.len()).filter(|&i| runs[i].next < runs[i].end).collect();
+                if active.is_empty() {
+                    break;
+                }
+                for chunk in active.chunks(batch.max(1)) {
+                    let mut packed = Vec::with_capacity(chunk.len());
+                    for &i in chunk {
+                        let r = &mut runs[i];
+                        let t = r.next;
+                        let (plan, _) = r.store.select(policy, &r.frusta[t], r.previous.as_ref());
+                        let (latents, poses) = (&r.latents, &r.traj.poses);
+                        let frame = |id: u64| latents.get(id as usize).map(|l| ContextFrame { latent: l, time: id, pose: &poses[id as usize] });
+                        packed.push(pack(layout, &manifest.autoencoder.latent, &plan, t as u64, &poses[t], frame)?);
+                        r.previous = Some(plan);
+                    }
+                    let contexts: Vec<&[(String, Tensor)]> = packed.iter().map(|p| p.tensors.as_slice()).collect();
+                    let context = stack(&contexts);
+                    let action = Tensor::new(vec![chunk.len(), 7], chunk.iter().flat_map(|&i| runs[i].traj.actions[runs[i].next]).collect());
+                    let rel_time = Tensor::new(vec![chunk.len()], packed.iter().map(|p| p.rel_time).collect());
+                    let cond = Conditioning { context: &context, action: &action, rel_time: &rel_time };
+                    let latent = model.sample(&layout.name, &cond, sampler, seed ^ step.wrapping_mul(0x9e37_79b9_7f4a_7c15))?;
+                    step += 1;
+                    let images = model.decode(&latent)?;
+                    let per = latent.data.len() / chunk.len();
+                    for (j, &i) in chunk.iter().enumerate() {
+                        let r = &mut runs[i];
+                        let t = r.next;
+                        r.scores.push(score(r.traj, t, &tensor_to_frame(&images, j)?));
+                        r.latents.push(latent.data[j * per..(j + 1) * per].to_vec());
+                        r.store
+                            .insert(MemoryFrame { id: t as u64, time: t as u64, frustum: r.frusta[t].clone() })
+                            .map_err(|e| ProbeError::Invalid(e.to_string()))?;
+                        r.next += 1;
+                    }
+                    progress(chunk.len());
+                }
+            }
+            Ok(runs.into_iter().map(|r| r.scores).collect())
+        }
+    }
+}
+
+/// The non-learned references draw only on observed frames: each return
+/// frame copies (or warps with depth) the observed frame of largest overlap.
+fn reference(traj: &Trajectory, how: &Predictor, max_frames: Option<usize>, progress: &dyn Fn(usize)) -> Result<Vec<FrameScore>, ProbeError> {
+    let range = rollout_frames(traj, max_frames);
+    let frusta = frusta(traj)?;
+    let store = observed(&frusta, range.start)?;
+    let policy = best_overlap_policy();
+    let mut out = Vec::with_capacity(range.len());
+    for t in range {
+        let (plan, _) = store.select(&policy, &frusta[t], None);
+        let src = plan.selected().next().map_or(0, |(_, f)| f.id as usize);
+        let img = match how {
+            Predictor::Reproject => reproject(traj.frame(src), traj.depth(src), &traj.intrinsics, &traj.poses[src], &traj.poses[t]).0,
+            _ => traj.frame(src).to_vec(),
+        };
+        out.push(score(traj, t, &img));
+        progress(1);
+    }
+    Ok(out)
+}

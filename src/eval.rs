@@ -1,0 +1,269 @@
+//! `worldpack eval`: LoopNav-style autoregressive rollouts of the return
+//! legs for every policy with its own weights, plus the non-learned
+//! references; per-(task, range, policy) means and per-frame curves, written
+//! as JSON that `scripts/report.py` turns into docs/results.md. Each row is
+//! saved as it finishes, so an interrupted run resumes where it stopped.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result, bail};
+use eval::probe::{FrameScore, Predictor, Row, encode_all};
+use eval::rollout::{rollout, rollout_frames};
+use eval::stats::mean_std;
+use eval::suite::{Trajectory, entries};
+use memory::{Policy, PolicyKind};
+use model::{Method, Model, RuntimeOptions, Sampler};
+use serde::{Deserialize, Serialize};
+
+use crate::sim::bar;
+
+pub struct Options {
+    pub suite: PathBuf,
+    pub models: PathBuf,
+    pub policies: Vec<PolicyKind>,
+    pub references: bool,
+    pub steps: usize,
+    pub method: Method,
+    pub max_frames: Option<usize>,
+    pub limit: Option<usize>,
+    pub batch: usize,
+    pub runtime: RuntimeOptions,
+    pub out: PathBuf,
+}
+
+/// Which trained weights a policy runs with. WorldMem's greedy selection
+/// fills four full-rate slots, like memory retrieval, so it borrows those.
+pub fn weights_for(kind: PolicyKind) -> &'static str {
+    match kind {
+        PolicyKind::Baseline => "baseline",
+        PolicyKind::NearestFramePacking => "nearest_frame_packing",
+        PolicyKind::MemoryRetrieval | PolicyKind::WorldMemGreedy => "memory_retrieval",
+        PolicyKind::WorldPack => "worldpack",
+    }
+}
+
+pub fn policy_name(kind: PolicyKind) -> String {
+    serde_json::to_value(kind).ok().and_then(|v| v.as_str().map(str::to_string)).unwrap_or_default()
+}
+
+/// What fixes a row's numbers; a saved row is reused only when it matches.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+struct RowKey {
+    row: String,
+    model: Option<String>,
+    suite: String,
+    trajectories: Vec<String>,
+    steps: usize,
+    method: String,
+    max_frames: Option<usize>,
+}
+
+#[derive(Serialize, Deserialize)]
+struct SavedRow {
+    key: RowKey,
+    /// Per trajectory (suite order), per generated frame.
+    frames: Vec<Vec<(usize, f64, f64)>>,
+    wall_s: f64,
+}
+
+pub fn run(o: &Options) -> Result<()> {
+    if o.policies.is_empty() && !o.references {
+        bail!("--policies: nothing to evaluate (name a policy or keep the references)");
+    }
+    let mut list = entries(&o.suite)?;
+    if let Some(n) = o.limit {
+        list.truncate(n);
+    }
+    if list.is_empty() {
+        bail!("--suite: {} lists no trajectories", o.suite.display());
+    }
+    let trajs: Vec<Trajectory> = list.iter().map(|e| Trajectory::load(&o.suite, e)).collect::<Result<_, _>>()?;
+    let rows_dir = o.out.join("rows");
+    std::fs::create_dir_all(&rows_dir).with_context(|| format!("--out {}", o.out.display()))?;
+
+    let mut models: BTreeMap<&str, Model> = BTreeMap::new();
+    for &kind in &o.policies {
+        let name = weights_for(kind);
+        if !models.contains_key(name) {
+            let dir = o.models.join(name);
+            let m = Model::load(&dir, o.runtime).with_context(|| format!("--models: the {} policy runs with {}", policy_name(kind), dir.display()))?;
+            models.insert(name, m);
+        }
+    }
+    let mut rows: Vec<(Row, Option<&Model>)> = Vec::new();
+    for &kind in &o.policies {
+        let m = &models[weights_for(kind)];
+        let sampler = Sampler::new(&m.manifest().diffusion, o.steps, o.method, 0.0)?;
+        rows.push((Row { name: policy_name(kind), predictor: Predictor::Model { model: m, policy: Policy::preset(kind), sampler } }, Some(m)));
+    }
+    if o.references {
+        rows.push((Row { name: "copy".into(), predictor: Predictor::Copy }, None));
+        rows.push((Row { name: "reproject".into(), predictor: Predictor::Reproject }, None));
+    }
+
+    let per_row: usize = trajs.iter().map(|t| rollout_frames(t, o.max_frames).len()).sum();
+    eprintln!("eval: {} trajectories, {} generated frames per row, {} rows, {} {:?} steps", trajs.len(), per_row, rows.len(), o.steps, o.method);
+    let mut results: Vec<(String, SavedRow)> = Vec::new();
+    for (row, m) in &rows {
+        let key = RowKey {
+            row: row.name.clone(),
+            model: m.map(|m| m.dir().display().to_string()),
+            suite: o.suite.display().to_string(),
+            trajectories: list.iter().map(|e| e.dir.clone()).collect(),
+            steps: o.steps,
+            method: format!("{:?}", o.method).to_lowercase(),
+            max_frames: o.max_frames,
+        };
+        let path = rows_dir.join(format!("{}.json", row.name));
+        if let Some(saved) = std::fs::read_to_string(&path).ok().and_then(|t| serde_json::from_str::<SavedRow>(&t).ok()).filter(|s| s.key == key) {
+            eprintln!("eval: reusing {} from {}", row.name, path.display());
+            results.push((row.name.clone(), saved));
+            continue;
+        }
+        let started = std::time::Instant::now();
+        let observed: Vec<Vec<Vec<f32>>> = match m {
+            Some(m) => trajs.iter().map(|t| encode_all(m, t)).collect::<Result<_, _>>()?,
+            None => trajs.iter().map(|_| Vec::new()).collect(),
+        };
+        let progress = bar(per_row, &row.name);
+        let scores = rollout(&trajs, row, &observed, o.max_frames, o.batch, 20261121, &|n| progress.inc(n as u64))?;
+        progress.finish();
+        let saved = SavedRow {
+            key,
+            frames: scores.iter().map(|s| s.iter().map(|f: &FrameScore| (f.t, f.psnr, f.ssim)).collect()).collect(),
+            wall_s: started.elapsed().as_secs_f64(),
+        };
+        let tmp = path.with_extension("json.tmp");
+        std::fs::write(&tmp, serde_json::to_string(&saved)?)?;
+        std::fs::rename(&tmp, &path)?;
+        results.push((row.name.clone(), saved));
+    }
+    let summary = summarise(&trajs, &results);
+    print(&summary);
+    let json = serde_json::json!({
+        "format": "worldpack-eval/1",
+        "suite": o.suite,
+        "models": o.models,
+        "sampler": { "method": format!("{:?}", o.method).to_lowercase(), "steps": o.steps },
+        "max_frames": o.max_frames,
+        "weights": o.policies.iter().map(|&k| (policy_name(k), weights_for(k))).collect::<BTreeMap<_, _>>(),
+        "trajectories": trajs.iter().map(|t| serde_json::json!({"dir": t.entry.dir, "task": t.entry.task, "range": t.entry.range,
+            "returning_point": t.entry.returning_point, "frames": t.len()})).collect::<Vec<_>>(),
+        "rows": results.iter().map(|(n, r)| serde_json::json!({"name": n, "wall_s": r.wall_s, "model": r.key.model})).collect::<Vec<_>>(),
+        "cells": summary.cells,
+        "curves": summary.curves,
+        "per_frame": results.iter().map(|(n, r)| (n.clone(), &r.frames)).collect::<BTreeMap<_, _>>(),
+    });
+    let path = o.out.join("results.json");
+    std::fs::write(&path, serde_json::to_string(&json)?)?;
+    println!("wrote {}", path.display());
+    Ok(())
+}
+
+#[derive(Serialize)]
+struct CellRow {
+    task: String,
+    range: i32,
+    row: String,
+    trajectories: usize,
+    /// Mean and std over trajectories of each trajectory's mean.
+    psnr: (f64, f64),
+    ssim: (f64, f64),
+}
+
+#[derive(Serialize)]
+struct Curve {
+    task: String,
+    row: String,
+    /// Mean over trajectories at each frame index of the return leg (while at least one trajectory is that long).
+    psnr: Vec<f64>,
+    ssim: Vec<f64>,
+}
+
+struct Summary {
+    cells: Vec<CellRow>,
+    curves: Vec<Curve>,
+}
+
+fn summarise(trajs: &[Trajectory], results: &[(String, SavedRow)]) -> Summary {
+    let mut keys: Vec<(String, i32)> = trajs.iter().map(|t| (t.entry.task.clone(), t.entry.range)).collect();
+    keys.sort();
+    keys.dedup();
+    let mut cells = Vec::new();
+    for (task, range) in &keys {
+        let idx: Vec<usize> = (0..trajs.len()).filter(|&i| &trajs[i].entry.task == task && trajs[i].entry.range == *range).collect();
+        for (name, r) in results {
+            let per = |m: fn(&(usize, f64, f64)) -> f64| -> Vec<f64> {
+                idx.iter().map(|&i| mean_std(&r.frames[i].iter().map(m).collect::<Vec<_>>()).0).filter(|v| v.is_finite()).collect()
+            };
+            cells.push(CellRow {
+                task: task.clone(),
+                range: *range,
+                row: name.clone(),
+                trajectories: idx.len(),
+                psnr: mean_std(&per(|f| f.1)),
+                ssim: mean_std(&per(|f| f.2)),
+            });
+        }
+    }
+    let mut tasks: Vec<String> = keys.iter().map(|k| k.0.clone()).collect();
+    tasks.dedup();
+    let mut curves = Vec::new();
+    for task in &tasks {
+        let idx: Vec<usize> = (0..trajs.len()).filter(|&i| &trajs[i].entry.task == task).collect();
+        for (name, r) in results {
+            let longest = idx.iter().map(|&i| r.frames[i].len()).max().unwrap_or(0);
+            let at = |j: usize, m: fn(&(usize, f64, f64)) -> f64| mean_std(&idx.iter().filter_map(|&i| r.frames[i].get(j).map(m)).collect::<Vec<_>>()).0;
+            curves.push(Curve {
+                task: task.clone(),
+                row: name.clone(),
+                psnr: (0..longest).map(|j| at(j, |f| f.1)).collect(),
+                ssim: (0..longest).map(|j| at(j, |f| f.2)).collect(),
+            });
+        }
+    }
+    Summary { cells, curves }
+}
+
+fn print(s: &Summary) {
+    println!("\nReturn-leg rollouts: PSNR / SSIM, mean over trajectories (± std)");
+    println!("{:<10} {:>5} {:<24} {:>16} {:>16}", "task", "range", "row", "PSNR", "SSIM");
+    for c in &s.cells {
+        println!("{:<10} {:>5} {:<24} {:>9.2} ± {:<5.2} {:>9.3} ± {:<5.3}", c.task, c.range, c.row, c.psnr.0, c.psnr.1, c.ssim.0, c.ssim.1);
+    }
+}
+
+/// `worldpack compare A.png B.png`: the metrics of two images, as JSON.
+pub fn compare(a: &Path, b: &Path) -> Result<()> {
+    let (wa, ha, pa) = read_rgb(a)?;
+    let (wb, hb, pb) = read_rgb(b)?;
+    if (wa, ha) != (wb, hb) {
+        bail!("the images differ in size: {}x{} and {}x{}", wa, ha, wb, hb);
+    }
+    let out = serde_json::json!({
+        "psnr": eval::metrics::psnr(&pa, &pb),
+        "ssim": eval::metrics::ssim(&pa, &pb, wa, ha),
+        "width": wa, "height": ha,
+    });
+    println!("{out}");
+    Ok(())
+}
+
+fn read_rgb(path: &Path) -> Result<(usize, usize, Vec<u8>)> {
+    let file = std::fs::File::open(path).with_context(|| format!("cannot open {}", path.display()))?;
+    let mut decoder = png::Decoder::new(std::io::BufReader::new(file));
+    decoder.set_transformations(png::Transformations::EXPAND | png::Transformations::STRIP_16);
+    let mut reader = decoder.read_info().with_context(|| format!("{}: not a PNG", path.display()))?;
+    let mut buf = vec![0; reader.output_buffer_size()];
+    let info = reader.next_frame(&mut buf).with_context(|| format!("{}: not a PNG", path.display()))?;
+    let (w, h) = (info.width as usize, info.height as usize);
+    let rgb = match info.color_type {
+        png::ColorType::Rgb => buf[..w * h * 3].to_vec(),
+        png::ColorType::Rgba => buf[..w * h * 4].chunks_exact(4).flat_map(|p| [p[0], p[1], p[2]]).collect(),
+        png::ColorType::Grayscale => buf[..w * h].iter().flat_map(|&g| [g, g, g]).collect(),
+        png::ColorType::GrayscaleAlpha => buf[..w * h * 2].chunks_exact(2).flat_map(|p| [p[0], p[0], p[0]]).collect(),
+        other => bail!("{}: unsupported PNG colour type {other:?}", path.display()),
+    };
+    Ok((w, h, rgb))
+}
