@@ -2,6 +2,7 @@
 //! intervals, the depth-reprojection reference, suite reading, and the
 //! teacher-forced memory probe (see docs/probe.md).
 
+pub mod features;
 pub mod metrics;
 pub mod probe;
 pub mod reproject;

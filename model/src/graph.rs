@@ -9,7 +9,7 @@ use ort::session::Session;
 use ort::value::{TensorRef, ValueType};
 
 use crate::error::ModelError;
-use crate::manifest::GraphSpec;
+use crate::manifest::{Dim, GraphSpec, TensorSpec};
 use crate::runtime::{RuntimeOptions, build_session};
 
 /// A float32 tensor: shape and row-major data.
@@ -44,6 +44,32 @@ impl Graph {
         let (session, provider) = build_session(&path, options)?;
         check_io(&spec.file, spec, &session)?;
         Ok(Graph { path, spec: spec.clone(), options, provider, idle: Mutex::new(vec![session]) })
+    }
+
+    /// Opens a graph no manifest describes (a user's feature network): its
+    /// inputs and outputs are read from the file, and must be float32.
+    pub fn open_self_described(path: &Path, options: RuntimeOptions) -> Result<Graph, ModelError> {
+        if !path.is_file() {
+            return Err(ModelError::input(path.display().to_string(), "no such ONNX file"));
+        }
+        let (session, provider) = build_session(path, options)?;
+        let describe = |outlets: &[ort::value::Outlet]| -> Result<Vec<TensorSpec>, ModelError> {
+            outlets
+                .iter()
+                .map(|o| match o.dtype() {
+                    ValueType::Tensor { ty, shape, .. } if format!("{ty:?}").eq_ignore_ascii_case("float32") => Ok(TensorSpec {
+                        name: o.name().to_string(),
+                        shape: shape.iter().map(|&d| if d < 0 { Dim::Named("dynamic".into()) } else { Dim::Fixed(d) }).collect(),
+                        dtype: "float32".into(),
+                    }),
+                    other => Err(ModelError::input(path.display().to_string(), format!("{}: {other:?}; feature networks take and give float32 tensors", o.name()))),
+                })
+                .collect()
+        };
+        let file = path.file_name().map(|f| f.to_string_lossy().into_owned()).unwrap_or_default();
+        let spec = GraphSpec { file, inputs: describe(session.inputs())?, outputs: describe(session.outputs())? };
+        let dir = path.parent().unwrap_or(Path::new("."));
+        Ok(Graph { path: dir.join(&spec.file), spec, options, provider, idle: Mutex::new(vec![session]) })
     }
 
     /// The execution provider running this graph (`cpu` or `cuda`).
