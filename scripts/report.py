@@ -104,6 +104,20 @@ def main():
                 alls.append((c["ssim"][0], c["trajectories"]))
             wmean = lambda xs: sum(v * n for v, n in xs) / max(sum(n for _, n in xs), 1)
             lines.append(f"| {LABEL.get(row, row)} | " + " | ".join(vals) + f" | {wmean(allp):.2f} / {wmean(alls):.3f} |")
+        fvd = {(c["task"], c["range"], row): c for row, cs in res.get("fvd", {}).items() for c in cs}
+        if any("lpips" in cell.get((task, r, row), {}) or "dreamsim" in cell.get((task, r, row), {}) or (task, r, row) in fvd
+               for r in ranges for row in rows):
+            lines += ["", "Learned metrics, feature networks " + json.dumps(res.get("feature_networks")) +
+                      ": LPIPS / DreamSim distance (lower is better) / FVD [95% bootstrap over clips].", "",
+                      "| method | " + " | ".join(f"range {r}" for r in ranges) + " |", "|---|" + "---|" * len(ranges)]
+            for row in rows:
+                vals = []
+                for r in ranges:
+                    c, f = cell.get((task, r, row), {}), fvd.get((task, r, row))
+                    parts = [f"{c[k][0]:.4f}" if k in c else "—" for k in ("lpips", "dreamsim")]
+                    parts.append(f"{f['fvd']:.3g} [{f['lo']:.3g}, {f['hi']:.3g}]" if f else "—")
+                    vals.append(" / ".join(parts))
+                lines.append(f"| {LABEL.get(row, row)} | " + " | ".join(vals) + " |")
         png = pictures / f"curves-{task}.png"
         curves_png(res, task, png)
         lines += ["", f"![{task} per-frame PSNR]({png.relative_to(out.parent)})", ""]

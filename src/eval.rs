@@ -8,8 +8,9 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
+use eval::features::{Embedding, Lpips, VideoFeatures};
 use eval::probe::{FrameScore, Predictor, Row, encode_all};
-use eval::rollout::{rollout, rollout_frames};
+use eval::rollout::{FvdEstimate, Scorer, clip_fvd, rollout, rollout_frames};
 use eval::stats::mean_std;
 use eval::suite::{Trajectory, entries};
 use memory::{Policy, PolicyKind};
@@ -30,7 +31,14 @@ pub struct Options {
     pub batch: usize,
     pub runtime: RuntimeOptions,
     pub out: PathBuf,
+    /// Feature networks (docs/metrics.md); each adds its metric.
+    pub lpips: Option<PathBuf>,
+    pub dreamsim: Option<PathBuf>,
+    pub fvd: Option<PathBuf>,
 }
+
+/// Bootstrap resamples of clips for an FVD interval.
+const FVD_REPS: usize = 100;
 
 /// Which trained weights a policy runs with. WorldMem's greedy selection
 /// fills four full-rate slots, like memory retrieval, so it borrows those.
@@ -57,13 +65,23 @@ struct RowKey {
     steps: usize,
     method: String,
     max_frames: Option<usize>,
+    feature_networks: [Option<String>; 3],
+}
+
+#[derive(Clone, Debug, Serialize, Deserialize)]
+struct FvdCell {
+    task: String,
+    range: i32,
+    #[serde(flatten)]
+    estimate: FvdEstimate,
 }
 
 #[derive(Serialize, Deserialize)]
 struct SavedRow {
     key: RowKey,
     /// Per trajectory (suite order), per generated frame.
-    frames: Vec<Vec<(usize, f64, f64)>>,
+    frames: Vec<Vec<FrameScore>>,
+    fvd: Vec<FvdCell>,
     wall_s: f64,
 }
 
@@ -91,6 +109,11 @@ pub fn run(o: &Options) -> Result<()> {
             models.insert(name, m);
         }
     }
+    let lpips = o.lpips.as_deref().map(|p| Lpips::open(p, o.runtime).context("--lpips")).transpose()?;
+    let dreamsim = o.dreamsim.as_deref().map(|p| Embedding::open(p, o.runtime).context("--dreamsim")).transpose()?;
+    let fvd_net = o.fvd.as_deref().map(|p| VideoFeatures::open(p, o.runtime).context("--fvd")).transpose()?;
+    let scorer = Scorer { lpips: lpips.as_ref(), dreamsim: dreamsim.as_ref(), keep_frames: fvd_net.is_some() };
+    let networks = [&o.lpips, &o.dreamsim, &o.fvd].map(|p| p.as_ref().map(|p| p.display().to_string()));
     let mut rows: Vec<(Row, Option<&Model>)> = Vec::new();
     for &kind in &o.policies {
         let m = &models[weights_for(kind)];
@@ -114,6 +137,7 @@ pub fn run(o: &Options) -> Result<()> {
             steps: o.steps,
             method: format!("{:?}", o.method).to_lowercase(),
             max_frames: o.max_frames,
+            feature_networks: networks.clone(),
         };
         let path = rows_dir.join(format!("{}.json", row.name));
         if let Some(saved) = std::fs::read_to_string(&path).ok().and_then(|t| serde_json::from_str::<SavedRow>(&t).ok()).filter(|s| s.key == key) {
@@ -127,13 +151,21 @@ pub fn run(o: &Options) -> Result<()> {
             None => trajs.iter().map(|_| Vec::new()).collect(),
         };
         let progress = bar(per_row, &row.name);
-        let scores = rollout(&trajs, row, &observed, o.max_frames, o.batch, 20261121, &|n| progress.inc(n as u64))?;
+        let output = rollout(&trajs, row, &observed, o.max_frames, o.batch, 20261121, &scorer, &|n| progress.inc(n as u64))?;
         progress.finish();
-        let saved = SavedRow {
-            key,
-            frames: scores.iter().map(|s| s.iter().map(|f: &FrameScore| (f.t, f.psnr, f.ssim)).collect()).collect(),
-            wall_s: started.elapsed().as_secs_f64(),
-        };
+        let mut fvd = Vec::new();
+        if let Some(net) = &fvd_net {
+            for (task, range) in cells_of(&trajs) {
+                let idx: Vec<usize> = (0..trajs.len()).filter(|&i| trajs[i].entry.task == task && trajs[i].entry.range == range).collect();
+                let t: Vec<&Trajectory> = idx.iter().map(|&i| &trajs[i]).collect();
+                let s: Vec<_> = idx.iter().map(|&i| &output.scores[i]).collect();
+                let f: Vec<_> = idx.iter().map(|&i| &output.frames[i]).collect();
+                if let Some(estimate) = clip_fvd(net, &t, &s, &f, FVD_REPS, 5)? {
+                    fvd.push(FvdCell { task, range, estimate });
+                }
+            }
+        }
+        let saved = SavedRow { key, frames: output.scores, fvd, wall_s: started.elapsed().as_secs_f64() };
         let tmp = path.with_extension("json.tmp");
         std::fs::write(&tmp, serde_json::to_string(&saved)?)?;
         std::fs::rename(&tmp, &path)?;
@@ -152,6 +184,8 @@ pub fn run(o: &Options) -> Result<()> {
             "returning_point": t.entry.returning_point, "frames": t.len()})).collect::<Vec<_>>(),
         "rows": results.iter().map(|(n, r)| serde_json::json!({"name": n, "wall_s": r.wall_s, "model": r.key.model})).collect::<Vec<_>>(),
         "cells": summary.cells,
+        "fvd": results.iter().map(|(n, r)| (n.clone(), &r.fvd)).collect::<BTreeMap<_, _>>(),
+        "feature_networks": { "lpips": networks[0], "dreamsim": networks[1], "fvd": networks[2] },
         "curves": summary.curves,
         "per_frame": results.iter().map(|(n, r)| (n.clone(), &r.frames)).collect::<BTreeMap<_, _>>(),
     });
@@ -170,6 +204,10 @@ struct CellRow {
     /// Mean and std over trajectories of each trajectory's mean.
     psnr: (f64, f64),
     ssim: (f64, f64),
+    #[serde(skip_serializing_if = "Option::is_none")]
+    lpips: Option<(f64, f64)>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    dreamsim: Option<(f64, f64)>,
 }
 
 #[derive(Serialize)]
@@ -186,24 +224,33 @@ struct Summary {
     curves: Vec<Curve>,
 }
 
-fn summarise(trajs: &[Trajectory], results: &[(String, SavedRow)]) -> Summary {
+/// The (task, range) cells of a suite, sorted.
+fn cells_of(trajs: &[Trajectory]) -> Vec<(String, i32)> {
     let mut keys: Vec<(String, i32)> = trajs.iter().map(|t| (t.entry.task.clone(), t.entry.range)).collect();
     keys.sort();
     keys.dedup();
+    keys
+}
+
+fn summarise(trajs: &[Trajectory], results: &[(String, SavedRow)]) -> Summary {
+    let keys = cells_of(trajs);
     let mut cells = Vec::new();
     for (task, range) in &keys {
         let idx: Vec<usize> = (0..trajs.len()).filter(|&i| &trajs[i].entry.task == task && trajs[i].entry.range == *range).collect();
         for (name, r) in results {
-            let per = |m: fn(&(usize, f64, f64)) -> f64| -> Vec<f64> {
-                idx.iter().map(|&i| mean_std(&r.frames[i].iter().map(m).collect::<Vec<_>>()).0).filter(|v| v.is_finite()).collect()
+            let per = |m: fn(&FrameScore) -> Option<f64>| -> Vec<f64> {
+                idx.iter().map(|&i| mean_std(&r.frames[i].iter().filter_map(m).collect::<Vec<_>>()).0).filter(|v| v.is_finite()).collect()
             };
+            let optional = |m: fn(&FrameScore) -> Option<f64>| Some(per(m)).filter(|v| !v.is_empty()).map(|v| mean_std(&v));
             cells.push(CellRow {
                 task: task.clone(),
                 range: *range,
                 row: name.clone(),
                 trajectories: idx.len(),
-                psnr: mean_std(&per(|f| f.1)),
-                ssim: mean_std(&per(|f| f.2)),
+                psnr: mean_std(&per(|f| Some(f.psnr))),
+                ssim: mean_std(&per(|f| Some(f.ssim))),
+                lpips: optional(|f| f.lpips),
+                dreamsim: optional(|f| f.dreamsim),
             });
         }
     }
@@ -214,12 +261,12 @@ fn summarise(trajs: &[Trajectory], results: &[(String, SavedRow)]) -> Summary {
         let idx: Vec<usize> = (0..trajs.len()).filter(|&i| &trajs[i].entry.task == task).collect();
         for (name, r) in results {
             let longest = idx.iter().map(|&i| r.frames[i].len()).max().unwrap_or(0);
-            let at = |j: usize, m: fn(&(usize, f64, f64)) -> f64| mean_std(&idx.iter().filter_map(|&i| r.frames[i].get(j).map(m)).collect::<Vec<_>>()).0;
+            let at = |j: usize, m: fn(&FrameScore) -> f64| mean_std(&idx.iter().filter_map(|&i| r.frames[i].get(j).map(m)).collect::<Vec<_>>()).0;
             curves.push(Curve {
                 task: task.clone(),
                 row: name.clone(),
-                psnr: (0..longest).map(|j| at(j, |f| f.1)).collect(),
-                ssim: (0..longest).map(|j| at(j, |f| f.2)).collect(),
+                psnr: (0..longest).map(|j| at(j, |f| f.psnr)).collect(),
+                ssim: (0..longest).map(|j| at(j, |f| f.ssim)).collect(),
             });
         }
     }
@@ -228,9 +275,10 @@ fn summarise(trajs: &[Trajectory], results: &[(String, SavedRow)]) -> Summary {
 
 fn print(s: &Summary) {
     println!("\nReturn-leg rollouts: PSNR / SSIM, mean over trajectories (± std)");
-    println!("{:<10} {:>5} {:<24} {:>16} {:>16}", "task", "range", "row", "PSNR", "SSIM");
+    println!("{:<10} {:>5} {:<24} {:>16} {:>16} {:>9} {:>9}", "task", "range", "row", "PSNR", "SSIM", "LPIPS", "DreamSim");
+    let opt = |v: Option<(f64, f64)>| v.map_or("—".to_string(), |(m, _)| format!("{m:.4}"));
     for c in &s.cells {
-        println!("{:<10} {:>5} {:<24} {:>9.2} ± {:<5.2} {:>9.3} ± {:<5.3}", c.task, c.range, c.row, c.psnr.0, c.psnr.1, c.ssim.0, c.ssim.1);
+        println!("{:<10} {:>5} {:<24} {:>9.2} ± {:<5.2} {:>9.3} ± {:<5.3} {:>9} {:>9}", c.task, c.range, c.row, c.psnr.0, c.psnr.1, c.ssim.0, c.ssim.1, opt(c.lpips), opt(c.dreamsim));
     }
 }
 

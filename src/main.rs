@@ -155,6 +155,15 @@ enum Command {
         /// Results folder: rows/<row>.json as each row finishes (reused when the settings match), then results.json.
         #[arg(long, default_value = "runs/eval")]
         out: PathBuf,
+        /// An LPIPS feature network in ONNX (contract in docs/metrics.md): adds per-frame LPIPS.
+        #[arg(long)]
+        lpips: Option<PathBuf>,
+        /// A DreamSim-style embedding network in ONNX: adds per-frame 1 − cosine distance.
+        #[arg(long)]
+        dreamsim: Option<PathBuf>,
+        /// A video feature network in ONNX (e.g. I3D): adds FVD per (task, range) with a bootstrap interval.
+        #[arg(long)]
+        fvd: Option<PathBuf>,
     },
     /// PSNR and SSIM of two PNG images, as JSON (the metrics `eval` uses).
     Compare { a: PathBuf, b: PathBuf },
@@ -435,7 +444,7 @@ fn main() -> ExitCode {
             };
             report(probe::run(&options), "probe")
         }
-        Command::Eval { suite, models, policies, no_references, steps, method, max_frames, limit, batch, provider, threads, out } => {
+        Command::Eval { suite, models, policies, no_references, steps, method, max_frames, limit, batch, provider, threads, out, lpips, dreamsim, fvd } => {
             let options = eval::Options {
                 suite,
                 models,
@@ -448,6 +457,9 @@ fn main() -> ExitCode {
                 batch: batch as usize,
                 runtime: model::RuntimeOptions { provider, threads },
                 out,
+                lpips,
+                dreamsim,
+                fvd,
             };
             report(eval::run(&options), "eval")
         }

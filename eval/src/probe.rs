@@ -53,11 +53,16 @@ pub fn best_overlap_policy() -> Policy {
     }
 }
 
-#[derive(Clone, Copy, Debug, Serialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, serde::Deserialize)]
 pub struct FrameScore {
     pub t: usize,
     pub psnr: f64,
     pub ssim: f64,
+    /// Only when a feature network was given (see [`crate::features`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub lpips: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub dreamsim: Option<f64>,
 }
 
 /// One trajectory's scores: `rows[i]` belongs to the i-th row, frames in the
@@ -194,7 +199,7 @@ pub fn probe_trajectory(
     let (w, h) = (traj.intrinsics.width as usize, traj.intrinsics.height as usize);
     let score = |t: usize, predicted: &[u8]| {
         let truth = traj.frame(t);
-        FrameScore { t, psnr: psnr(predicted, truth), ssim: ssim(predicted, truth, w, h).unwrap_or(f64::NAN) }
+        FrameScore { t, psnr: psnr(predicted, truth), ssim: ssim(predicted, truth, w, h).unwrap_or(f64::NAN), lpips: None, dreamsim: None }
     };
     let mut scores = Vec::with_capacity(rows.len());
     for (row, plans) in rows.iter().zip(&plans) {

@@ -9,6 +9,7 @@ use model::generate::{Conditioning, tensor_to_frame};
 use model::pack::{ContextFrame, pack, stack};
 use model::Tensor;
 
+use crate::features::{Embedding, FeatureError, Lpips, VideoFeatures, frechet_distance};
 use crate::metrics::{psnr, ssim};
 use crate::probe::{FrameScore, Predictor, ProbeError, Row, best_overlap_policy};
 use crate::reproject::reproject;
@@ -47,12 +48,39 @@ struct Run<'a> {
     next: usize,
     end: usize,
     scores: Vec<FrameScore>,
+    frames: Vec<Vec<u8>>,
 }
 
-fn score(traj: &Trajectory, t: usize, predicted: &[u8]) -> FrameScore {
-    let (w, h) = (traj.intrinsics.width as usize, traj.intrinsics.height as usize);
-    let truth = traj.frame(t);
-    FrameScore { t, psnr: psnr(predicted, truth), ssim: ssim(predicted, truth, w, h).unwrap_or(f64::NAN) }
+/// How generated frames are scored, and whether they are kept (for FVD).
+#[derive(Default)]
+pub struct Scorer<'a> {
+    pub lpips: Option<&'a Lpips>,
+    pub dreamsim: Option<&'a Embedding>,
+    pub keep_frames: bool,
+}
+
+impl Scorer<'_> {
+    fn score(&self, traj: &Trajectory, t: usize, predicted: &[u8]) -> Result<FrameScore, ProbeError> {
+        let (w, h) = (traj.intrinsics.width as usize, traj.intrinsics.height as usize);
+        let truth = traj.frame(t);
+        let feature = |e: FeatureError| ProbeError::Invalid(e.to_string());
+        let lpips = match self.lpips {
+            Some(n) => Some(n.distances(&[predicted], &[truth], w, h).map_err(feature)?[0]),
+            None => None,
+        };
+        let dreamsim = match self.dreamsim {
+            Some(n) => Some(n.distances(&[predicted], &[truth], w, h).map_err(feature)?[0]),
+            None => None,
+        };
+        Ok(FrameScore { t, psnr: psnr(predicted, truth), ssim: ssim(predicted, truth, w, h).unwrap_or(f64::NAN), lpips, dreamsim })
+    }
+}
+
+/// A row's rollouts: per trajectory, per generated frame, its scores and
+/// (when kept) the frame itself.
+pub struct RowOutput {
+    pub scores: Vec<Vec<FrameScore>>,
+    pub frames: Vec<Vec<Vec<u8>>>,
 }
 
 /// One row's rollouts over `trajs`. `observed_latents[i]` holds trajectory
@@ -65,10 +93,14 @@ pub fn rollout(
     max_frames: Option<usize>,
     batch: usize,
     seed: u64,
+    scorer: &Scorer,
     progress: &dyn Fn(usize),
-) -> Result<Vec<Vec<FrameScore>>, ProbeError> {
+) -> Result<RowOutput, ProbeError> {
     match &row.predictor {
-        Predictor::Copy | Predictor::Reproject => trajs.iter().map(|t| reference(t, &row.predictor, max_frames, progress)).collect(),
+        Predictor::Copy | Predictor::Reproject => {
+            let (scores, frames) = trajs.iter().map(|t| reference(t, &row.predictor, max_frames, scorer, progress)).collect::<Result<Vec<_>, _>>()?.into_iter().unzip();
+            Ok(RowOutput { scores, frames })
+        }
         Predictor::Model { model, policy, sampler } => {
             let manifest = model.manifest();
             let layout = manifest
@@ -89,6 +121,7 @@ pub fn rollout(
                         next: range.start,
                         end: range.end,
                         scores: Vec::with_capacity(range.len()),
+                        frames: Vec::new(),
                     })
                 })
                 .collect::<Result<Vec<_>, ProbeError>>()?;
@@ -121,7 +154,11 @@ pub fn rollout(
                     for (j, &i) in chunk.iter().enumerate() {
                         let r = &mut runs[i];
                         let t = r.next;
-                        r.scores.push(score(r.traj, t, &tensor_to_frame(&images, j)?));
+                        let img = tensor_to_frame(&images, j)?;
+                        r.scores.push(scorer.score(r.traj, t, &img)?);
+                        if scorer.keep_frames {
+                            r.frames.push(img);
+                        }
                         r.latents.push(latent.data[j * per..(j + 1) * per].to_vec());
                         r.store
                             .insert(MemoryFrame { id: t as u64, time: t as u64, frustum: r.frusta[t].clone() })
@@ -131,19 +168,27 @@ pub fn rollout(
                     progress(chunk.len());
                 }
             }
-            Ok(runs.into_iter().map(|r| r.scores).collect())
+            let (scores, frames) = runs.into_iter().map(|r| (r.scores, r.frames)).unzip();
+            Ok(RowOutput { scores, frames })
         }
     }
 }
 
 /// The non-learned references draw only on observed frames: each return
 /// frame copies (or warps with depth) the observed frame of largest overlap.
-fn reference(traj: &Trajectory, how: &Predictor, max_frames: Option<usize>, progress: &dyn Fn(usize)) -> Result<Vec<FrameScore>, ProbeError> {
+fn reference(
+    traj: &Trajectory,
+    how: &Predictor,
+    max_frames: Option<usize>,
+    scorer: &Scorer,
+    progress: &dyn Fn(usize),
+) -> Result<(Vec<FrameScore>, Vec<Vec<u8>>), ProbeError> {
     let range = rollout_frames(traj, max_frames);
     let frusta = frusta(traj)?;
     let store = observed(&frusta, range.start)?;
     let policy = best_overlap_policy();
     let mut out = Vec::with_capacity(range.len());
+    let mut frames = Vec::new();
     for t in range {
         let (plan, _) = store.select(&policy, &frusta[t], None);
         let src = plan.selected().next().map_or(0, |(_, f)| f.id as usize);
@@ -151,8 +196,66 @@ fn reference(traj: &Trajectory, how: &Predictor, max_frames: Option<usize>, prog
             Predictor::Reproject => reproject(traj.frame(src), traj.depth(src), &traj.intrinsics, &traj.poses[src], &traj.poses[t]).0,
             _ => traj.frame(src).to_vec(),
         };
-        out.push(score(traj, t, &img));
+        out.push(scorer.score(traj, t, &img)?);
+        if scorer.keep_frames {
+            frames.push(img);
+        }
         progress(1);
     }
-    Ok(out)
+    Ok((out, frames))
+}
+
+/// FVD of one group of rollouts, with its bootstrap interval.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct FvdEstimate {
+    pub clips: usize,
+    pub fvd: f64,
+    pub lo: f64,
+    pub hi: f64,
+}
+
+/// FVD between generated and ground-truth clips: each trajectory's
+/// generated leg cut into non-overlapping windows of the network's clip
+/// length, paired with the true frames at the same times. The interval
+/// resamples clip pairs. `None` with fewer than two clips.
+pub fn clip_fvd(
+    net: &VideoFeatures,
+    trajs: &[&Trajectory],
+    scores: &[&Vec<FrameScore>],
+    frames: &[&Vec<Vec<u8>>],
+    reps: usize,
+    seed: u64,
+) -> Result<Option<FvdEstimate>, ProbeError> {
+    let len = net.clip_len();
+    let (mut fake, mut real): (Vec<Vec<&[u8]>>, Vec<Vec<&[u8]>>) = (Vec::new(), Vec::new());
+    for ((traj, s), f) in trajs.iter().zip(scores).zip(frames) {
+        for start in (0..f.len().saturating_sub(len - 1)).step_by(len) {
+            fake.push(f[start..start + len].iter().map(Vec::as_slice).collect());
+            real.push(s[start..start + len].iter().map(|x| traj.frame(x.t)).collect());
+        }
+    }
+    if fake.len() < 2 {
+        return Ok(None);
+    }
+    let (w, h) = (trajs[0].intrinsics.width as usize, trajs[0].intrinsics.height as usize);
+    let feature = |e: FeatureError| ProbeError::Invalid(e.to_string());
+    let mut ff = Vec::new();
+    let mut fr = Vec::new();
+    for (a, b) in fake.chunks(32).zip(real.chunks(32)) {
+        ff.extend(net.features(a, w, h).map_err(feature)?);
+        fr.extend(net.features(b, w, h).map_err(feature)?);
+    }
+    let fvd = frechet_distance(&fr, &ff);
+    let mut rng = memory::rng::SplitMix64::new(seed);
+    let n = ff.len();
+    let mut boots: Vec<f64> = (0..reps)
+        .map(|_| {
+            let pick: Vec<usize> = (0..n).map(|_| (rng.next_u64() % n as u64) as usize).collect();
+            let take = |v: &[Vec<f64>]| pick.iter().map(|&i| v[i].clone()).collect::<Vec<_>>();
+            frechet_distance(&take(&fr), &take(&ff))
+        })
+        .collect();
+    boots.sort_by(f64::total_cmp);
+    let at = |q: f64| boots.get(((q * (boots.len().max(1) - 1) as f64).round()) as usize).copied().unwrap_or(f64::NAN);
+    Ok(Some(FvdEstimate { clips: n, fvd, lo: at(0.025), hi: at(0.975) }))
 }
