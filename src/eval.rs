@@ -12,7 +12,7 @@ use eval::features::{Embedding, Lpips, VideoFeatures};
 use eval::probe::{FrameScore, Predictor, Row, encode_all};
 use eval::rollout::{FvdEstimate, Scorer, clip_fvd, rollout, rollout_frames};
 use eval::stats::mean_std;
-use eval::suite::{Trajectory, entries};
+use eval::suite::Trajectory;
 use memory::{Policy, PolicyKind};
 use model::{Method, Model, RuntimeOptions, Sampler};
 use serde::{Deserialize, Serialize};
@@ -89,14 +89,7 @@ pub fn run(o: &Options) -> Result<()> {
     if o.policies.is_empty() && !o.references {
         bail!("--policies: nothing to evaluate (name a policy or keep the references)");
     }
-    let mut list = entries(&o.suite)?;
-    if let Some(n) = o.limit {
-        list.truncate(n);
-    }
-    if list.is_empty() {
-        bail!("--suite: {} lists no trajectories", o.suite.display());
-    }
-    let trajs: Vec<Trajectory> = list.iter().map(|e| Trajectory::load(&o.suite, e)).collect::<Result<_, _>>()?;
+    let trajs = eval::suite::load(&o.suite, o.limit)?;
     let rows_dir = o.out.join("rows");
     std::fs::create_dir_all(&rows_dir).with_context(|| format!("--out {}", o.out.display()))?;
 
@@ -133,7 +126,7 @@ pub fn run(o: &Options) -> Result<()> {
             row: row.name.clone(),
             model: m.map(|m| m.dir().display().to_string()),
             suite: o.suite.display().to_string(),
-            trajectories: list.iter().map(|e| e.dir.clone()).collect(),
+            trajectories: trajs.iter().map(|t| t.entry.dir.clone()).collect(),
             steps: o.steps,
             method: format!("{:?}", o.method).to_lowercase(),
             max_frames: o.max_frames,

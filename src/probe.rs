@@ -11,7 +11,6 @@ use std::rc::Rc;
 use anyhow::{Context, Result, bail};
 use eval::probe::{Predictor, Row, Settings, TrajectoryScores, encode_all, latency_ms, probe_trajectory};
 use eval::stats::{Interval, cluster_bootstrap, mean_std};
-use eval::suite::{Trajectory, entries};
 use memory::{Policy, PolicyKind};
 use model::{Method, Model, RuntimeOptions, Sampler};
 use serde::Serialize;
@@ -87,13 +86,7 @@ pub fn run(o: &Options) -> Result<()> {
     if o.stride == 0 || o.batch == 0 {
         bail!("--stride and --batch must be at least 1");
     }
-    let mut list = entries(&o.suite)?;
-    if let Some(n) = o.limit {
-        list.truncate(n);
-    }
-    if list.is_empty() {
-        bail!("--suite: {} lists no trajectories", o.suite.display());
-    }
+    let trajectories = eval::suite::load(&o.suite, o.limit)?;
 
     // Models, loaded once each.
     let mut models: Vec<(String, PolicyKind, Model)> = Vec::new();
@@ -137,7 +130,6 @@ pub fn run(o: &Options) -> Result<()> {
     row_models.extend([None, None]);
 
     let settings = Settings { stride: o.stride, batch: o.batch, seed: 20261121 };
-    let trajectories: Vec<Trajectory> = list.iter().map(|e| Trajectory::load(&o.suite, e)).collect::<Result<_, _>>()?;
     let targets: usize = trajectories.iter().map(|t| t.return_frames(o.stride).len()).sum();
     eprintln!("probe: {} trajectories, {} return-leg targets, {} rows, {} sampler steps ({:?})", trajectories.len(), targets, rows.len(), o.steps, o.method);
 

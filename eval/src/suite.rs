@@ -38,6 +38,17 @@ pub fn entries(suite: &Path) -> Result<Vec<Entry>, SuiteError> {
     Ok(index.trajectories)
 }
 
+/// The first `limit` trajectories of a suite (all without a limit), loaded;
+/// an error when there are none.
+pub fn load(suite: &Path, limit: Option<usize>) -> Result<Vec<Trajectory>, SuiteError> {
+    let mut list = entries(suite)?;
+    list.truncate(limit.unwrap_or(usize::MAX));
+    if list.is_empty() {
+        return Err(bad(&suite.join("index.json"), "lists no trajectories"));
+    }
+    list.iter().map(|e| Trajectory::load(suite, e)).collect()
+}
+
 /// One trajectory, every frame in memory.
 pub struct Trajectory {
     pub entry: Entry,
