@@ -15,7 +15,7 @@ import numpy as np
 FONT = cv2.FONT_HERSHEY_SIMPLEX
 BLACK, GREY = (0, 0, 0), (225, 225, 225)
 COLOURS = {"baseline": (60, 60, 60), "nearest_frame_packing": (40, 140, 40), "memory_retrieval": (200, 120, 30),
-           "worldpack": (30, 30, 200)}
+           "worldpack": (30, 30, 200), "worldpack_keep_last": (0, 90, 255)}
 
 
 def text(img, s, xy, scale=0.5, colour=BLACK):

@@ -16,12 +16,12 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-ORDER = ["baseline", "nearest_frame_packing", "memory_retrieval", "worldmem_greedy", "worldpack", "copy", "reproject"]
+ORDER = ["baseline", "nearest_frame_packing", "memory_retrieval", "worldmem_greedy", "worldpack", "worldpack_keep_last", "copy", "reproject"]
 LABEL = {"baseline": "Baseline (4 recent)", "nearest_frame_packing": "Nearest Frame Packing", "memory_retrieval": "Memory Retrieval",
-         "worldmem_greedy": "WorldMem greedy", "worldpack": "**WorldPack**", "copy": "copy best-overlap observed frame",
+         "worldmem_greedy": "WorldMem greedy", "worldpack": "**WorldPack**", "worldpack_keep_last": "WorldPack, newest frame kept", "copy": "copy best-overlap observed frame",
          "reproject": "reproject it with depth"}
 COLOURS = {"baseline": (60, 60, 60), "nearest_frame_packing": (40, 140, 40), "memory_retrieval": (200, 120, 30),
-           "worldmem_greedy": (160, 60, 160), "worldpack": (30, 30, 200), "copy": (150, 150, 150), "reproject": (0, 170, 220)}
+           "worldmem_greedy": (160, 60, 160), "worldpack": (30, 30, 200), "worldpack_keep_last": (0, 90, 255), "copy": (150, 150, 150), "reproject": (0, 170, 220)}
 FONT = cv2.FONT_HERSHEY_SIMPLEX
 
 

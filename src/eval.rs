@@ -113,6 +113,18 @@ pub fn run(o: &Options) -> Result<()> {
         let sampler = Sampler::new(&m.manifest().diffusion, o.steps, o.method, 0.0)?;
         rows.push((Row { name: policy_name(kind), predictor: Predictor::Model { model: m, policy: Policy::preset(kind), sampler } }, Some(m)));
     }
+    // WorldPack fine-tuned with the newest frame kept, when that variant is there.
+    let keep_last_dir = o.models.join("worldpack_keep_last");
+    let keep_last = if o.policies.contains(&PolicyKind::WorldPack) && keep_last_dir.join("manifest.json").exists() {
+        Some(Model::load(&keep_last_dir, o.runtime).with_context(|| format!("loading {}", keep_last_dir.display()))?)
+    } else {
+        None
+    };
+    if let Some(m) = &keep_last {
+        let policy = crate::probe::variant_policy("worldpack_keep_last").expect("a variant");
+        let sampler = Sampler::new(&m.manifest().diffusion, o.steps, o.method, 0.0)?;
+        rows.push((Row { name: "worldpack_keep_last".into(), predictor: Predictor::Model { model: m, policy, sampler } }, Some(m)));
+    }
     if o.references {
         rows.push((Row { name: "copy".into(), predictor: Predictor::Copy }, None));
         rows.push((Row { name: "reproject".into(), predictor: Predictor::Reproject }, None));

@@ -28,9 +28,15 @@ struct Meta {
     intrinsics: Intrinsics,
 }
 
+/// What a policy's plans are called: its name, `_keep_last` appended when
+/// the newest frame is pinned to the first slot.
+pub fn plan_name(policy: &Policy) -> String {
+    format!("{}{}", policy_name(policy.kind), if policy.keep_last { "_keep_last" } else { "" })
+}
+
 /// The file a policy's plans go to inside each trajectory folder.
-pub fn plan_file(kind: PolicyKind) -> String {
-    format!("plan-{}.npy", policy_name(kind))
+pub fn plan_file(policy: &Policy) -> String {
+    format!("plan-{}.npy", plan_name(policy))
 }
 
 pub fn parse_policy(s: &str) -> Result<PolicyKind, String> {
@@ -84,17 +90,22 @@ pub fn run(data: &Path, kinds: &[PolicyKind], keep_last: bool) -> Result<()> {
         return Err(first);
     }
 
-    let described: Vec<_> = policies
-        .iter()
-        .map(|p| {
-            serde_json::json!({
-                "name": policy_name(p.kind),
-                "file": plan_file(p.kind),
-                "rates": p.packing.rates().collect::<Vec<_>>(),
-                "policy": p,
-            })
+    // Entries of earlier runs for other policies stay (e.g. keep-last plans beside plain ones).
+    let previous: Vec<serde_json::Value> = std::fs::read_to_string(data.join("plans.json"))
+        .ok()
+        .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
+        .and_then(|v| v["policies"].as_array().cloned())
+        .unwrap_or_default();
+    let names: Vec<String> = policies.iter().map(plan_name).collect();
+    let mut described: Vec<_> = previous.into_iter().filter(|e| !names.iter().any(|n| e["name"] == n.as_str())).collect();
+    described.extend(policies.iter().map(|p| {
+        serde_json::json!({
+            "name": plan_name(p),
+            "file": plan_file(p),
+            "rates": p.packing.rates().collect::<Vec<_>>(),
+            "policy": p,
         })
-        .collect();
+    }));
     let out = serde_json::json!({
         "format": PLANS_FORMAT,
         "query": "the target frame's pose; candidates are all earlier frames of the trajectory",
@@ -102,8 +113,7 @@ pub fn run(data: &Path, kinds: &[PolicyKind], keep_last: bool) -> Result<()> {
         "policies": described,
     });
     std::fs::write(data.join("plans.json"), serde_json::to_string_pretty(&out)?)?;
-    println!("wrote plans for {} trajectories, policies {:?} -> {}", index.trajectories.len(),
-        kinds.iter().map(|&k| policy_name(k)).collect::<Vec<_>>(), data.join("plans.json").display());
+    println!("wrote plans for {} trajectories, policies {names:?} -> {}", index.trajectories.len(), data.join("plans.json").display());
     Ok(())
 }
 
@@ -138,7 +148,7 @@ fn plan_trajectory(dir: &Path, policies: &[Policy]) -> Result<()> {
             }
             store.insert(MemoryFrame { id: t as u64, time: t as u64, frustum: frustum.clone() })?;
         }
-        world::npy::write(&dir.join(plan_file(policy.kind)), &[frusta.len(), slots], &rows)?;
+        world::npy::write(&dir.join(plan_file(policy)), &[frusta.len(), slots], &rows)?;
     }
     Ok(())
 }

@@ -17,14 +17,24 @@ use serde::Serialize;
 
 use crate::sim::bar;
 
-/// The trained variants, each run with its own context policy, in the paper's order.
-pub const VARIANTS: [(&str, PolicyKind); 4] = [
-    ("baseline", PolicyKind::Baseline),
-    ("nearest_frame_packing", PolicyKind::NearestFramePacking),
-    ("memory_retrieval", PolicyKind::MemoryRetrieval),
-    ("worldpack", PolicyKind::WorldPack),
-];
+/// The trained variants, each run with its own context policy: the paper's
+/// four in its order, then WorldPack fine-tuned with the newest frame kept.
+pub const VARIANTS: [&str; 5] = ["baseline", "nearest_frame_packing", "memory_retrieval", "worldpack", "worldpack_keep_last"];
+
+/// The context policy a variant folder was trained with.
+pub fn variant_policy(name: &str) -> Option<Policy> {
+    let preset = |k| Some(Policy::preset(k));
+    match name {
+        "baseline" => preset(PolicyKind::Baseline),
+        "nearest_frame_packing" => preset(PolicyKind::NearestFramePacking),
+        "memory_retrieval" => preset(PolicyKind::MemoryRetrieval),
+        "worldpack" => preset(PolicyKind::WorldPack),
+        "worldpack_keep_last" => Some(Policy { keep_last: true, ..Policy::preset(PolicyKind::WorldPack) }),
+        _ => None,
+    }
+}
 pub const SELECTION_CONTROL: &str = "worldpack weights, recency contexts";
+pub const KEEP_LAST: &str = "worldpack weights, newest frame kept";
 
 pub struct Options {
     pub suite: PathBuf,
@@ -89,24 +99,25 @@ pub fn run(o: &Options) -> Result<()> {
     let trajectories = eval::suite::load(&o.suite, o.limit)?;
 
     // Models, loaded once each.
-    let mut models: Vec<(String, PolicyKind, Model)> = Vec::new();
-    for (name, kind) in VARIANTS {
+    let mut models: Vec<(String, Policy, Model)> = Vec::new();
+    for name in VARIANTS {
         let dir = o.models.join(name);
         if dir.join("manifest.json").exists() {
-            models.push((name.to_string(), kind, load(&dir, o.runtime)?));
+            let policy = variant_policy(name).expect("every variant has a policy");
+            models.push((name.to_string(), policy, load(&dir, o.runtime)?));
         }
     }
     if !models.iter().any(|m| m.0 == "baseline") {
         bail!("--models: {} has no baseline/ model folder; the probe compares every row with it", o.models.display());
     }
     for (name, dir) in &o.extra {
-        models.push((name.clone(), PolicyKind::WorldPack, load(dir, o.runtime)?));
+        models.push((name.clone(), Policy::preset(PolicyKind::WorldPack), load(dir, o.runtime)?));
     }
     let sampler_for = |m: &Model, steps: usize| Sampler::new(&m.manifest().diffusion, steps, o.method, 0.0);
     let mut rows: Vec<Row> = Vec::new();
     let mut row_models: Vec<Option<(&Model, usize)>> = Vec::new();
-    for (name, kind, m) in &models {
-        rows.push(Row { name: name.clone(), predictor: Predictor::Model { model: m, policy: Policy::preset(*kind), sampler: sampler_for(m, o.steps)? } });
+    for (name, policy, m) in &models {
+        rows.push(Row { name: name.clone(), predictor: Predictor::Model { model: m, policy: policy.clone(), sampler: sampler_for(m, o.steps)? } });
         row_models.push(Some((m, o.steps)));
     }
     if let Some((_, _, wp)) = models.iter().find(|m| m.0 == "worldpack") {
@@ -117,6 +128,10 @@ pub fn run(o: &Options) -> Result<()> {
             });
             row_models.push(Some((wp, o.steps)));
         }
+        // The setting DESIGN §3 leaves open, at inference only: the newest frame pinned to the first full-rate slot.
+        let keep_last = variant_policy("worldpack_keep_last").expect("a variant");
+        rows.push(Row { name: KEEP_LAST.into(), predictor: Predictor::Model { model: wp, policy: keep_last, sampler: sampler_for(wp, o.steps)? } });
+        row_models.push(Some((wp, o.steps)));
         for &s in o.sweep_steps.iter().filter(|&&s| s != o.steps) {
             rows.push(Row {
                 name: format!("worldpack, {s} steps"),
@@ -228,19 +243,26 @@ fn summarise(rows: &[Row], row_models: &[Option<(&Model, usize)>], latencies: &[
         .collect();
 
     let index = |name: &str| rows.iter().position(|r| r.name == name);
-    let mut contrasts = Vec::new();
-    if let Some(wp) = index("worldpack") {
-        for other in [SELECTION_CONTROL, "copy best-overlap frame", "reproject best-overlap frame"] {
-            if let Some(j) = index(other) {
-                contrasts.push(Contrast {
-                    a: "worldpack".into(),
-                    b: other.into(),
-                    psnr: cluster_bootstrap(&diffs(&everything, wp, j, psnr), BOOTSTRAP_REPS, 11),
-                    ssim: cluster_bootstrap(&diffs(&everything, wp, j, ssim), BOOTSTRAP_REPS, 11),
-                });
-            }
-        }
-    }
+    // Pairs that answer the probe's questions: what selection buys with the same
+    // weights, what pinning the newest frame buys, and the non-learned references.
+    const PAIRS: [(&str, &str); 6] = [
+        ("worldpack", SELECTION_CONTROL),
+        ("worldpack_keep_last", "worldpack"),
+        ("worldpack", "copy best-overlap frame"),
+        ("worldpack", "reproject best-overlap frame"),
+        ("worldpack_keep_last", "nearest_frame_packing"),
+        ("worldpack_keep_last", "reproject best-overlap frame"),
+    ];
+    let contrasts = PAIRS
+        .iter()
+        .filter_map(|&(a, b)| Some((a, b, index(a)?, index(b)?)))
+        .map(|(a, b, i, j)| Contrast {
+            a: a.into(),
+            b: b.into(),
+            psnr: cluster_bootstrap(&diffs(&everything, i, j, psnr), BOOTSTRAP_REPS, 11),
+            ssim: cluster_bootstrap(&diffs(&everything, i, j, ssim), BOOTSTRAP_REPS, 11),
+        })
+        .collect();
 
     let mut keys: Vec<(String, i32)> = all.iter().map(|t| (t.task.clone(), t.range)).collect();
     keys.sort();
@@ -310,7 +332,9 @@ fn short(name: &str) -> String {
     match name {
         "nearest_frame_packing" => "nfp".into(),
         "memory_retrieval" => "mr".into(),
+        "worldpack_keep_last" => "wp keep-last".into(),
         SELECTION_CONTROL => "wp w/ recency".into(),
+        KEEP_LAST => "wp w/ keep-last".into(),
         "copy best-overlap frame" => "copy".into(),
         "reproject best-overlap frame" => "reproject".into(),
         n => n.chars().take(14).collect(),

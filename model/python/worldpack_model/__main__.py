@@ -6,6 +6,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from .config import LAYOUTS
+
 
 def main() -> None:
     ap = argparse.ArgumentParser(prog="worldpack_model", description=__doc__)
@@ -31,7 +33,7 @@ def main() -> None:
     p = sub.add_parser("train", help="train the CDiT on one policy's plans (resumes from run/cdit-<policy>.pt); "
                        "trains the autoencoder and caches latents first when they are missing")
     common(p)
-    p.add_argument("--policy", default="worldpack", choices=["baseline", "memory_retrieval", "worldpack", "nearest_frame_packing"])
+    p.add_argument("--policy", default="worldpack", choices=sorted(LAYOUTS))
     p.add_argument("--steps", type=int, default=20000)
     p.add_argument("--batch", type=int, default=32)
     p.add_argument("--lr", type=float, default=3e-4)

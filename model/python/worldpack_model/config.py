@@ -47,6 +47,8 @@ LAYOUTS = {
     "memory_retrieval": Layout("memory_retrieval", (1,), (4,)),
     "worldpack": Layout("worldpack", (1, 4, 16), (2, 4, 16)),
     "nearest_frame_packing": Layout("nearest_frame_packing", (1, 4, 16), (2, 4, 16)),
+    # WorldPack with the newest frame pinned to the first full-rate slot (`worldpack plan --keep-last`).
+    "worldpack_keep_last": Layout("worldpack_keep_last", (1, 4, 16), (2, 4, 16)),
 }
 
 
