@@ -59,6 +59,17 @@ def curves_png(results, task, path):
     cv2.imwrite(str(path), img)
 
 
+def paired_interval(per_frame, row, metric, base="baseline", reps=4000, seed=7):
+    """Frame-weighted mean of row − base over all frames, with a 95% bootstrap
+    interval that resamples whole trajectories (frames within one are correlated)."""
+    sums = np.array([sum(x[metric] - y[metric] for x, y in zip(ta, tb)) for ta, tb in zip(per_frame[row], per_frame[base])])
+    counts = np.array([len(ta) for ta in per_frame[row]])
+    rng = np.random.default_rng(seed)
+    pick = rng.integers(0, len(sums), (reps, len(sums)))
+    boots = np.sort(sums[pick].sum(1) / counts[pick].sum(1))
+    return sums.sum() / counts.sum(), boots[int(0.025 * (reps - 1))], boots[int(round(0.975 * (reps - 1)))]
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("results")
@@ -135,6 +146,15 @@ def main():
         d = pooled["worldpack"] - pooled["baseline"]
         lines.append(f"The paper orders WorldPack first and the 4-frame baseline last among the learned methods. Here WorldPack is "
                      f"{learned.index('worldpack') + 1} of {len(learned)} learned methods, {d:+.2f} dB from the baseline.")
+    per_frame = res.get("per_frame", {})
+    if "baseline" in per_frame:
+        lines += ["", "Paired differences to the baseline over every generated frame (95% bootstrap intervals over trajectories):", "",
+                  "| method | ΔPSNR (dB) | ΔSSIM |", "|---|---|---|"]
+        for row in rows:
+            if row == "baseline" or row not in per_frame:
+                continue
+            p, s_ = paired_interval(per_frame, row, "psnr"), paired_interval(per_frame, row, "ssim")
+            lines.append(f"| {LABEL.get(row, row)} | {p[0]:+.2f} [{p[1]:+.2f}, {p[2]:+.2f}] | {s_[0]:+.3f} [{s_[1]:+.3f}, {s_[2]:+.3f}] |")
     lines += ["", "Time per row (whole suite): " + ", ".join(f"{r} {wall[r]:.0f} s" for r in ordered(wall)) + ".", ""]
 
     if a.probe:

@@ -8,7 +8,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 suite="${SUITE:-data/loopnav-eval}"
-per_cell="${PER_CELL:-3}"
+per_cell="${PER_CELL:-2}"
 out="${OUT:-runs/eval}"
 if [ ! -x .venv/bin/python ]; then
   python3 -m venv .venv

@@ -1,0 +1,187 @@
+//! `worldpack eval` and `worldpack probe` end to end on a reduced suite
+//! (two short trajectories, a few generated frames, two sampler steps), with
+//! the committed variants: the whole pipeline in seconds.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use serde_json::Value;
+
+fn bin() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_worldpack"))
+}
+
+fn root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+fn run(args: &[&str]) -> Output {
+    let out = bin().args(args).current_dir(root()).output().expect("worldpack runs");
+    out
+}
+
+fn ok(args: &[&str]) -> String {
+    let out = run(args);
+    assert!(out.status.success(), "worldpack {args:?} failed:\n{}", String::from_utf8_lossy(&out.stderr));
+    String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
+fn temp(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("worldpack-eval-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    dir
+}
+
+fn suite() -> PathBuf {
+    let dir = temp("suite");
+    ok(&["sim", "loopnav", "--per-cell", "1", "--tasks", "aba,abca", "--ranges", "5", "--seed", "3", "--out", dir.to_str().unwrap()]);
+    dir
+}
+
+fn json(path: &Path) -> Value {
+    serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap()
+}
+
+#[test]
+fn reduced_rollout_suite_runs_resumes_and_scores_every_frame() {
+    let suite = suite();
+    let out = temp("out");
+    let args = ["eval", "--suite", suite.to_str().unwrap(), "--out", out.to_str().unwrap(), "--max-frames", "5", "--steps", "2", "--threads", "1"];
+    ok(&args);
+    let first = json(&out.join("results.json"));
+    let rows: Vec<&str> = first["rows"].as_array().unwrap().iter().map(|r| r["name"].as_str().unwrap()).collect();
+    assert_eq!(rows, ["baseline", "nearest_frame_packing", "memory_retrieval", "worldpack", "worldmem_greedy", "worldpack_keep_last", "copy", "reproject"]);
+    let trajectories = first["trajectories"].as_array().unwrap();
+    assert_eq!(trajectories.len(), 2);
+    for (name, per_traj) in first["per_frame"].as_object().unwrap() {
+        for (t, frames) in per_traj.as_array().unwrap().iter().enumerate() {
+            let frames = frames.as_array().unwrap();
+            assert_eq!(frames.len(), 5, "{name}: trajectory {t}");
+            let start = trajectories[t]["returning_point"].as_u64().unwrap();
+            for (j, f) in frames.iter().enumerate() {
+                assert_eq!(f["t"].as_u64().unwrap(), start + j as u64, "{name}: frames in order from the returning point");
+                let (psnr, ssim) = (f["psnr"].as_f64().unwrap(), f["ssim"].as_f64().unwrap());
+                assert!(psnr > 5.0 && psnr <= 100.0, "{name}: PSNR {psnr}");
+                assert!(ssim > -1.0 && ssim <= 1.0, "{name}: SSIM {ssim}");
+            }
+        }
+    }
+    // The memory-free reference and a learned policy must not score the same frames identically.
+    assert_ne!(first["per_frame"]["copy"], first["per_frame"]["worldpack"]);
+    // Policies with other contexts generate other frames.
+    assert_ne!(first["per_frame"]["baseline"], first["per_frame"]["worldpack"]);
+
+    // A second run reuses every row and reproduces the results.
+    let log = ok(&args);
+    assert_eq!(log.matches("reusing").count(), 8, "{log}");
+    let second = json(&out.join("results.json"));
+    assert_eq!(first["cells"], second["cells"]);
+    // Other settings are not confused with saved rows.
+    let log = ok(&["eval", "--suite", suite.to_str().unwrap(), "--out", out.to_str().unwrap(), "--max-frames", "3", "--steps", "2",
+        "--policies", "worldpack", "--no-references", "--threads", "1"]);
+    assert!(!log.contains("reusing"), "{log}");
+
+    // The report renders from the results (when the test venv is there).
+    let python = root().join(".venv/bin/python");
+    if python.exists() {
+        let md = out.join("report/results.md");
+        let status = Command::new(python)
+            .args(["scripts/report.py", out.join("results.json").to_str().unwrap(), "-o", md.to_str().unwrap()])
+            .current_dir(root())
+            .status()
+            .unwrap();
+        assert!(status.success());
+        let text = std::fs::read_to_string(&md).unwrap();
+        assert!(text.contains("| **WorldPack** |") && text.contains("curves-abca.png"), "{text}");
+        assert!(out.join("report/results/curves-aba.png").exists());
+    }
+    let _ = std::fs::remove_dir_all(&suite);
+    let _ = std::fs::remove_dir_all(&out);
+}
+
+#[test]
+fn feature_networks_add_lpips_dreamsim_and_fvd() {
+    let suite = suite();
+    let out = temp("features");
+    let nets = root().join("fixtures/metrics");
+    let net = |f: &str| nets.join(f).to_str().unwrap().to_string();
+    ok(&["eval", "--suite", suite.to_str().unwrap(), "--out", out.to_str().unwrap(), "--max-frames", "8", "--steps", "1", "--threads", "1",
+        "--policies", "worldpack", "--lpips", &net("lpips_tiny.onnx"), "--dreamsim", &net("embed_tiny.onnx"), "--fvd", &net("video_tiny.onnx")]);
+    let r = json(&out.join("results.json"));
+    for cell in r["cells"].as_array().unwrap() {
+        let (lpips, dreamsim) = (cell["lpips"][0].as_f64().unwrap(), cell["dreamsim"][0].as_f64().unwrap());
+        assert!(lpips > 0.0 && dreamsim >= 0.0 && dreamsim <= 2.0, "{cell}");
+    }
+    // 8 frames per trajectory, clips of 4: two clips per trajectory, one trajectory per cell.
+    for (row, cells) in r["fvd"].as_object().unwrap() {
+        let cells = cells.as_array().unwrap();
+        assert_eq!(cells.len(), 2, "{row}");
+        for c in cells {
+            assert_eq!(c["clips"], 2);
+            let (v, lo, hi) = (c["fvd"].as_f64().unwrap(), c["lo"].as_f64().unwrap(), c["hi"].as_f64().unwrap());
+            assert!(v >= 0.0 && lo <= hi, "{c}");
+        }
+    }
+    // A network that breaks the contract is refused, naming the flag.
+    let e = run(&["eval", "--suite", suite.to_str().unwrap(), "--out", out.to_str().unwrap(), "--lpips", &net("embed_tiny.onnx")]);
+    assert_eq!(e.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&e.stderr).contains("--lpips"), "{}", String::from_utf8_lossy(&e.stderr));
+    let _ = std::fs::remove_dir_all(&suite);
+    let _ = std::fs::remove_dir_all(&out);
+}
+
+#[test]
+fn probe_compares_every_row_with_the_baseline() {
+    let suite = suite();
+    let out = temp("probe").join("probe.json");
+    ok(&["probe", "--suite", suite.to_str().unwrap(), "--steps", "2", "--stride", "6", "--latency-calls", "2", "--threads", "1",
+        "--sweep-steps", "1", "--out", out.to_str().unwrap()]);
+    let report = json(&out);
+    let rows = report["rows"].as_array().unwrap();
+    let names: Vec<&str> = rows.iter().map(|r| r["name"].as_str().unwrap()).collect();
+    assert_eq!(names, ["baseline", "nearest_frame_packing", "memory_retrieval", "worldpack", "worldpack_keep_last",
+        "worldpack weights, recency contexts", "worldpack weights, newest frame kept", "worldpack, 1 steps",
+        "copy best-overlap frame", "reproject best-overlap frame"]);
+    let frames = rows[0]["frames"].as_u64().unwrap();
+    assert!(frames > 0);
+    for r in rows {
+        assert_eq!(r["frames"].as_u64(), Some(frames), "every row scores the same frames");
+        assert!(r["latency_ms"].as_f64().unwrap() > 0.0);
+        if r["name"] == "baseline" {
+            assert!(r["psnr_vs_baseline"].is_null());
+            continue;
+        }
+        let iv = &r["psnr_vs_baseline"];
+        let (lo, mean, hi) = (iv["lo"].as_f64().unwrap(), iv["mean"].as_f64().unwrap(), iv["hi"].as_f64().unwrap());
+        assert!(lo <= mean + 1e-9 && mean <= hi + 1e-9, "{}: {lo} {mean} {hi}", r["name"]);
+        let direct = r["psnr"].as_f64().unwrap() - rows[0]["psnr"].as_f64().unwrap();
+        assert!((direct - mean).abs() < 1e-9, "{}: paired mean {mean} vs difference of means {direct}", r["name"]);
+    }
+    assert_eq!(report["contrasts"].as_array().unwrap().len(), 6);
+    let _ = std::fs::remove_dir_all(&suite);
+}
+
+#[test]
+fn bad_arguments_name_what_is_wrong() {
+    let err = |args: &[&str]| {
+        let out = run(args);
+        assert_eq!(out.status.code(), Some(2), "{args:?}");
+        String::from_utf8_lossy(&out.stderr).into_owned()
+    };
+    let missing = temp("missing");
+    let e = err(&["eval", "--suite", missing.to_str().unwrap()]);
+    assert!(e.contains("index.json") && e.contains("worldpack sim loopnav"), "{e}");
+    let suite = suite();
+    let empty = temp("empty-models");
+    std::fs::create_dir_all(&empty).unwrap();
+    let e = err(&["eval", "--suite", suite.to_str().unwrap(), "--models", empty.to_str().unwrap(), "--out", temp("o").to_str().unwrap()]);
+    assert!(e.contains("--models") && e.contains("baseline"), "{e}");
+    let e = err(&["probe", "--suite", suite.to_str().unwrap(), "--models", empty.to_str().unwrap()]);
+    assert!(e.contains("--models") && e.contains("baseline/"), "{e}");
+    let e = err(&["eval", "--suite", suite.to_str().unwrap(), "--policies", "worldpak"]);
+    assert!(e.contains("worldpak") && e.contains("worldmem_greedy"), "{e}");
+    let e = err(&["probe", "--suite", suite.to_str().unwrap(), "--extra", "nodir"]);
+    assert!(e.contains("NAME=DIR"), "{e}");
+    let _ = std::fs::remove_dir_all(&suite);
+    let _ = std::fs::remove_dir_all(&empty);
+}
