@@ -144,8 +144,14 @@ def main():
     learned = [r for r in ranking if r not in ("copy", "reproject")]
     if "worldpack" in pooled and "baseline" in pooled:
         d = pooled["worldpack"] - pooled["baseline"]
-        lines.append(f"The paper orders WorldPack first and the 4-frame baseline last among the learned methods. Here WorldPack is "
-                     f"{learned.index('worldpack') + 1} of {len(learned)} learned methods, {d:+.2f} dB from the baseline.")
+        line = (f"The paper orders WorldPack first and the 4-frame baseline last among the learned methods. Here WorldPack is "
+                f"{learned.index('worldpack') + 1} of {len(learned)} learned methods, {d:+.2f} dB from the baseline")
+        per_frame = res.get("per_frame", {})
+        if "worldpack" in per_frame and "baseline" in per_frame:
+            m, lo, hi = paired_interval(per_frame, "worldpack", "psnr")
+            verdict = "above zero" if lo > 0 else "below zero" if hi < 0 else "spanning zero: these rollouts do not separate it from the baseline"
+            line += f"; frame-weighted and paired, {m:+.2f} dB with a 95% interval of [{lo:+.2f}, {hi:+.2f}], {verdict}"
+        lines.append(line + ".")
     per_frame = res.get("per_frame", {})
     if "baseline" in per_frame:
         lines += ["", "Paired differences to the baseline over every generated frame (95% bootstrap intervals over trajectories):", "",
@@ -155,7 +161,12 @@ def main():
                 continue
             p, s_ = paired_interval(per_frame, row, "psnr"), paired_interval(per_frame, row, "ssim")
             lines.append(f"| {LABEL.get(row, row)} | {p[0]:+.2f} [{p[1]:+.2f}, {p[2]:+.2f}] | {s_[0]:+.3f} [{s_[1]:+.3f}, {s_[2]:+.3f}] |")
-    lines += ["", "Time per row (whole suite): " + ", ".join(f"{r} {wall[r]:.0f} s" for r in ordered(wall)) + ".", ""]
+    total = sum(wall.values())
+    frames = sum(len(t) for t in next(iter(per_frame.values()), []))
+    lines += ["", "Time per row (whole suite): " + ", ".join(f"{r} {wall[r]:.0f} s" for r in ordered(wall)) +
+              f"; {total / 60:.1f} min in all for {frames} generated frames per row. Rows scale with the frames generated, so "
+              f"LoopNav's 18 trajectories per cell (144) would take about {total / 60 * 144 / max(n_traj, 1):.0f} min on the same machine "
+              "(an estimate, not a run).", ""]
 
     if a.probe:
         p = json.loads(Path(a.probe).read_text())
