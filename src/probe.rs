@@ -193,7 +193,7 @@ pub fn run(o: &Options) -> Result<()> {
         if let Some(parent) = path.parent() {
             std::fs::create_dir_all(parent)?;
         }
-        std::fs::write(path, serde_json::to_string_pretty(&json)?).with_context(|| format!("--out {}", path.display()))?;
+        std::fs::write(path, serde_json::to_string(&json)?).with_context(|| format!("--out {}", path.display()))?;
         println!("wrote {}", path.display());
     }
     Ok(())

@@ -32,8 +32,9 @@ fn temp(name: &str) -> PathBuf {
     dir
 }
 
-fn suite() -> PathBuf {
-    let dir = temp("suite");
+/// A reduced suite of its own for each test (tests run in parallel in one process).
+fn suite(test: &str) -> PathBuf {
+    let dir = temp(&format!("suite-{test}"));
     ok(&["sim", "loopnav", "--per-cell", "1", "--tasks", "aba,abca", "--ranges", "5", "--seed", "3", "--out", dir.to_str().unwrap()]);
     dir
 }
@@ -44,7 +45,7 @@ fn json(path: &Path) -> Value {
 
 #[test]
 fn reduced_rollout_suite_runs_resumes_and_scores_every_frame() {
-    let suite = suite();
+    let suite = suite("rollout");
     let out = temp("out");
     let args = ["eval", "--suite", suite.to_str().unwrap(), "--out", out.to_str().unwrap(), "--max-frames", "5", "--steps", "2", "--threads", "1"];
     ok(&args);
@@ -101,7 +102,7 @@ fn reduced_rollout_suite_runs_resumes_and_scores_every_frame() {
 
 #[test]
 fn feature_networks_add_lpips_dreamsim_and_fvd() {
-    let suite = suite();
+    let suite = suite("features");
     let out = temp("features");
     let nets = root().join("fixtures/metrics");
     let net = |f: &str| nets.join(f).to_str().unwrap().to_string();
@@ -132,7 +133,7 @@ fn feature_networks_add_lpips_dreamsim_and_fvd() {
 
 #[test]
 fn probe_compares_every_row_with_the_baseline() {
-    let suite = suite();
+    let suite = suite("probe");
     let out = temp("probe").join("probe.json");
     ok(&["probe", "--suite", suite.to_str().unwrap(), "--steps", "2", "--stride", "6", "--latency-calls", "2", "--threads", "1",
         "--sweep-steps", "1", "--out", out.to_str().unwrap()]);
@@ -159,6 +160,7 @@ fn probe_compares_every_row_with_the_baseline() {
     }
     assert_eq!(report["contrasts"].as_array().unwrap().len(), 6);
     let _ = std::fs::remove_dir_all(&suite);
+    let _ = std::fs::remove_dir_all(out.parent().unwrap());
 }
 
 #[test]
@@ -171,10 +173,11 @@ fn bad_arguments_name_what_is_wrong() {
     let missing = temp("missing");
     let e = err(&["eval", "--suite", missing.to_str().unwrap()]);
     assert!(e.contains("index.json") && e.contains("worldpack sim loopnav"), "{e}");
-    let suite = suite();
+    let suite = suite("bad");
     let empty = temp("empty-models");
     std::fs::create_dir_all(&empty).unwrap();
-    let e = err(&["eval", "--suite", suite.to_str().unwrap(), "--models", empty.to_str().unwrap(), "--out", temp("o").to_str().unwrap()]);
+    let bad_out = temp("bad-out");
+    let e = err(&["eval", "--suite", suite.to_str().unwrap(), "--models", empty.to_str().unwrap(), "--out", bad_out.to_str().unwrap()]);
     assert!(e.contains("--models") && e.contains("baseline"), "{e}");
     let e = err(&["probe", "--suite", suite.to_str().unwrap(), "--models", empty.to_str().unwrap()]);
     assert!(e.contains("--models") && e.contains("baseline/"), "{e}");
@@ -184,4 +187,5 @@ fn bad_arguments_name_what_is_wrong() {
     assert!(e.contains("NAME=DIR"), "{e}");
     let _ = std::fs::remove_dir_all(&suite);
     let _ = std::fs::remove_dir_all(&empty);
+    let _ = std::fs::remove_dir_all(&bad_out);
 }
