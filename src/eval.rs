@@ -65,6 +65,8 @@ struct RowKey {
     steps: usize,
     method: String,
     max_frames: Option<usize>,
+    /// The noise of a frame depends on which frames share its denoiser call.
+    batch: usize,
     feature_networks: [Option<String>; 3],
 }
 
@@ -142,6 +144,7 @@ pub fn run(o: &Options) -> Result<()> {
             steps: o.steps,
             method: format!("{:?}", o.method).to_lowercase(),
             max_frames: o.max_frames,
+            batch: o.batch,
             feature_networks: networks.clone(),
         };
         let path = rows_dir.join(format!("{}.json", row.name));
