@@ -17,6 +17,7 @@ use memory::{Policy, PolicyKind};
 use model::{Method, Model, RuntimeOptions, Sampler};
 use serde::{Deserialize, Serialize};
 
+use crate::plan::policy_name;
 use crate::sim::bar;
 
 pub struct Options {
@@ -49,10 +50,6 @@ pub fn weights_for(kind: PolicyKind) -> &'static str {
         PolicyKind::MemoryRetrieval | PolicyKind::WorldMemGreedy => "memory_retrieval",
         PolicyKind::WorldPack => "worldpack",
     }
-}
-
-pub fn policy_name(kind: PolicyKind) -> String {
-    serde_json::to_value(kind).ok().and_then(|v| v.as_str().map(str::to_string)).unwrap_or_default()
 }
 
 /// What fixes a row's numbers; a saved row is reused only when it matches.

@@ -45,7 +45,8 @@ pub fn parse_policy(s: &str) -> Result<PolicyKind, String> {
     })
 }
 
-fn policy_name(kind: PolicyKind) -> String {
+/// A policy's name as users write it (`worldpack`, `memory_retrieval`, ...).
+pub fn policy_name(kind: PolicyKind) -> String {
     serde_json::to_value(kind).ok().and_then(|v| v.as_str().map(str::to_string)).unwrap_or_default()
 }
 
