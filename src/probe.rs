@@ -9,8 +9,9 @@ use std::path::{Path, PathBuf};
 use std::rc::Rc;
 
 use anyhow::{Context, Result, bail};
-use eval::probe::{Predictor, Row, Settings, TrajectoryScores, encode_all, latency_ms, probe_trajectory};
+use eval::probe::{Predictor, ProbeError, Row, Settings, TrajectoryScores, encode_all, latency_ms, probe_trajectory};
 use eval::stats::{Interval, cluster_bootstrap, mean_std};
+use eval::suite::Trajectory;
 use memory::{Policy, PolicyKind};
 use model::{Method, Model, RuntimeOptions, Sampler};
 use serde::Serialize;
@@ -150,10 +151,11 @@ pub fn run(o: &Options) -> Result<()> {
 
     // Latency first, on the first trajectory, while nothing else runs.
     let mut latencies = Vec::new();
+    let mut first_latents = latent_cache(&trajectories[0]);
     for row in &rows {
         let latents = match &row.predictor {
-            Predictor::Model { model, .. } => encode_all(model, &trajectories[0])?,
-            _ => Vec::new(),
+            Predictor::Model { model, .. } => first_latents(model)?,
+            _ => Rc::default(),
         };
         latencies.push(latency_ms(&trajectories[0], row, &latents, o.latency_calls)?);
     }
@@ -162,15 +164,7 @@ pub fn run(o: &Options) -> Result<()> {
     let mut all: Vec<TrajectoryScores> = Vec::new();
     for traj in &trajectories {
         progress.set_message(traj.entry.dir.clone());
-        let mut cache: Vec<(*const Model, Rc<Vec<Vec<f32>>>)> = Vec::new();
-        let mut latents_for = |m: &Model| -> Result<Rc<Vec<Vec<f32>>>, eval::probe::ProbeError> {
-            if let Some((_, l)) = cache.iter().find(|(p, _)| std::ptr::eq(*p, m)) {
-                return Ok(l.clone());
-            }
-            let l = Rc::new(encode_all(m, traj)?);
-            cache.push((m as *const Model, l.clone()));
-            Ok(l)
-        };
+        let mut latents_for = latent_cache(traj);
         all.push(probe_trajectory(traj, &rows, &settings, &mut latents_for, &|n| progress.inc(n as u64))?);
     }
     progress.finish();
@@ -197,6 +191,19 @@ pub fn run(o: &Options) -> Result<()> {
         println!("wrote {}", path.display());
     }
     Ok(())
+}
+
+/// The latents of `traj` under a model, encoded once per model (rows share models).
+fn latent_cache(traj: &Trajectory) -> impl FnMut(&Model) -> Result<Rc<Vec<Vec<f32>>>, ProbeError> + '_ {
+    let mut cache: Vec<(*const Model, Rc<Vec<Vec<f32>>>)> = Vec::new();
+    move |m| {
+        if let Some((_, l)) = cache.iter().find(|(p, _)| std::ptr::eq(*p, m)) {
+            return Ok(l.clone());
+        }
+        let l = Rc::new(encode_all(m, traj)?);
+        cache.push((m as *const Model, l.clone()));
+        Ok(l)
+    }
 }
 
 struct Report {

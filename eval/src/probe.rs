@@ -5,7 +5,7 @@
 
 use std::time::Instant;
 
-use memory::{ContextPlan, Estimator, FrameMemory, Frustum, MemoryFrame, Packing, Policy, PolicyKind, Ranking, ScoreWeights};
+use memory::{ContextPlan, Estimator, FrameMemory, MemoryFrame, Packing, Policy, PolicyKind, Ranking, ScoreWeights};
 use model::generate::{Conditioning, frame_to_tensor, tensor_to_frame};
 use model::pack::{ContextFrame, pack, stack};
 use model::{Model, ModelError, Sampler, Tensor};
@@ -91,12 +91,7 @@ fn policy_of<'a>(row: &'a Row, copy: &'a Policy) -> &'a Policy {
 /// Every row's plan for every target, from one pass over the trajectory.
 fn plans(traj: &Trajectory, rows: &[Row], targets: &[usize]) -> Result<Vec<Vec<ContextPlan>>, ProbeError> {
     let copy = best_overlap_policy();
-    let frusta = traj
-        .poses
-        .iter()
-        .map(|p| Frustum::new(*p, traj.intrinsics))
-        .collect::<Result<Vec<_>, _>>()
-        .map_err(|e| ProbeError::Invalid(format!("{}: {e}", traj.entry.dir)))?;
+    let frusta = traj.frusta()?;
     let mut out: Vec<Vec<ContextPlan>> = rows.iter().map(|_| Vec::with_capacity(targets.len())).collect();
     let mut previous: Vec<Option<ContextPlan>> = rows.iter().map(|_| None).collect();
     let mut store = FrameMemory::new();
@@ -140,8 +135,14 @@ pub fn encode_all(m: &Model, traj: &Trajectory) -> Result<Vec<Vec<f32>>, ProbeEr
     Ok(latents)
 }
 
-fn best_frame(plan: &ContextPlan) -> Option<usize> {
-    plan.selected().next().map(|(_, f)| f.id as usize)
+/// What a non-learned reference shows for frame `t`: the first frame of
+/// `plan` (the best-overlap one), copied or warped into `t`'s pose.
+pub fn reference_image(traj: &Trajectory, how: &Predictor, plan: &ContextPlan, t: usize) -> Vec<u8> {
+    let src = plan.selected().next().map_or(t - 1, |(_, f)| f.id as usize);
+    match how {
+        Predictor::Reproject => reproject(traj.frame(src), traj.depth(src), &traj.intrinsics, &traj.poses[src], &traj.poses[t]).0,
+        _ => traj.frame(src).to_vec(),
+    }
 }
 
 /// Predicts `targets` of `traj` for one model row, `batch` at a time.
@@ -222,12 +223,7 @@ pub fn probe_trajectory(
             }
             Predictor::Copy | Predictor::Reproject => {
                 for (&t, plan) in targets.iter().zip(plans) {
-                    let src = best_frame(plan).unwrap_or(t - 1);
-                    let img = match row.predictor {
-                        Predictor::Copy => traj.frame(src).to_vec(),
-                        _ => reproject(traj.frame(src), traj.depth(src), &traj.intrinsics, &traj.poses[src], &traj.poses[t]).0,
-                    };
-                    out.push(score(t, &img));
+                    out.push(score(t, &reference_image(traj, &row.predictor, plan, t)));
                     progress(1);
                 }
             }
@@ -243,7 +239,7 @@ pub fn latency_ms(traj: &Trajectory, row: &Row, latents: &[Vec<f32>], calls: usi
     let targets: Vec<usize> = traj.return_frames(1).into_iter().take(calls.max(1)).collect();
     let copy = best_overlap_policy();
     let policy = policy_of(row, &copy);
-    let frusta = traj.poses.iter().map(|p| Frustum::new(*p, traj.intrinsics)).collect::<Result<Vec<_>, _>>().map_err(|e| ProbeError::Invalid(e.to_string()))?;
+    let frusta = traj.frusta()?;
     let mut store = FrameMemory::new();
     let last = *targets.last().unwrap_or(&0);
     let mut times = Vec::new();
@@ -258,12 +254,8 @@ pub fn latency_ms(traj: &Trajectory, row: &Row, latents: &[Vec<f32>], calls: usi
                         std::hint::black_box(img);
                     })?;
                 }
-                Predictor::Copy => {
-                    std::hint::black_box(traj.frame(best_frame(&plan).unwrap_or(t - 1)).to_vec());
-                }
-                Predictor::Reproject => {
-                    let s = best_frame(&plan).unwrap_or(t - 1);
-                    std::hint::black_box(reproject(traj.frame(s), traj.depth(s), &traj.intrinsics, &traj.poses[s], &traj.poses[t]));
+                reference => {
+                    std::hint::black_box(reference_image(traj, reference, &plan, t));
                 }
             }
             times.push(start.elapsed().as_secs_f64() * 1e3);

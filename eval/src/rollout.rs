@@ -11,8 +11,7 @@ use model::Tensor;
 
 use crate::features::{Embedding, FeatureError, Lpips, VideoFeatures, frechet_distance};
 use crate::metrics::{psnr, ssim};
-use crate::probe::{FrameScore, Predictor, ProbeError, Row, best_overlap_policy};
-use crate::reproject::reproject;
+use crate::probe::{FrameScore, Predictor, ProbeError, Row, best_overlap_policy, reference_image};
 use crate::suite::Trajectory;
 
 /// The frames a rollout generates: the return leg, from the returning point,
@@ -21,14 +20,6 @@ pub fn rollout_frames(traj: &Trajectory, max_frames: Option<usize>) -> std::ops:
     let start = traj.entry.returning_point.clamp(1, traj.len());
     let end = max_frames.map_or(traj.len(), |m| (start + m).min(traj.len()));
     start..end
-}
-
-fn frusta(traj: &Trajectory) -> Result<Vec<Frustum>, ProbeError> {
-    traj.poses
-        .iter()
-        .map(|p| Frustum::new(*p, traj.intrinsics))
-        .collect::<Result<Vec<_>, _>>()
-        .map_err(|e| ProbeError::Invalid(format!("{}: {e}", traj.entry.dir)))
 }
 
 fn observed(frusta: &[Frustum], upto: usize) -> Result<FrameMemory, ProbeError> {
@@ -111,7 +102,7 @@ pub fn rollout(
                 .zip(observed_latents)
                 .map(|(traj, lat)| {
                     let range = rollout_frames(traj, max_frames);
-                    let frusta = frusta(traj)?;
+                    let frusta = traj.frusta()?;
                     Ok(Run {
                         store: observed(&frusta, range.start)?,
                         latents: lat[..range.start].to_vec(),
@@ -184,18 +175,14 @@ fn reference(
     progress: &dyn Fn(usize),
 ) -> Result<(Vec<FrameScore>, Vec<Vec<u8>>), ProbeError> {
     let range = rollout_frames(traj, max_frames);
-    let frusta = frusta(traj)?;
+    let frusta = traj.frusta()?;
     let store = observed(&frusta, range.start)?;
     let policy = best_overlap_policy();
     let mut out = Vec::with_capacity(range.len());
     let mut frames = Vec::new();
     for t in range {
         let (plan, _) = store.select(&policy, &frusta[t], None);
-        let src = plan.selected().next().map_or(0, |(_, f)| f.id as usize);
-        let img = match how {
-            Predictor::Reproject => reproject(traj.frame(src), traj.depth(src), &traj.intrinsics, &traj.poses[src], &traj.poses[t]).0,
-            _ => traj.frame(src).to_vec(),
-        };
+        let img = reference_image(traj, how, &plan, t);
         out.push(scorer.score(traj, t, &img)?);
         if scorer.keep_frames {
             frames.push(img);

@@ -2,7 +2,7 @@
 
 use std::path::{Path, PathBuf};
 
-use memory::{Intrinsics, Pose};
+use memory::{Frustum, Intrinsics, Pose};
 use serde::Deserialize;
 use world::npy;
 
@@ -125,6 +125,15 @@ impl Trajectory {
     pub fn depth(&self, t: usize) -> &[u16] {
         let n = self.intrinsics.width as usize * self.intrinsics.height as usize;
         &self.depth_mm[t * n..(t + 1) * n]
+    }
+
+    /// Every frame's view frustum, in frame order.
+    pub fn frusta(&self) -> Result<Vec<Frustum>, SuiteError> {
+        self.poses
+            .iter()
+            .enumerate()
+            .map(|(t, p)| Frustum::new(*p, self.intrinsics).map_err(|e| bad(Path::new(&self.entry.dir), format!("frame {t}: {e}"))))
+            .collect()
     }
 
     /// Frames of the return leg, every `stride`-th (never frame 0).
