@@ -10,6 +10,7 @@ mod geometry;
 mod plan;
 mod probe;
 mod sim;
+mod study;
 
 use std::io::Read;
 use std::path::PathBuf;
@@ -117,6 +118,55 @@ enum Command {
         /// Write the summary and every frame's scores here (JSON).
         #[arg(long)]
         out: Option<PathBuf>,
+    },
+    /// Speed against accuracy, stability under pose noise and where methods
+    /// fail (docs/results.md): the probe under many conditions, paired frame by frame.
+    Study {
+        /// A suite from `worldpack sim loopnav` (test seeds).
+        #[arg(long)]
+        suite: PathBuf,
+        /// The variant model folders (all five: baseline, nearest_frame_packing, memory_retrieval, worldpack, worldpack_keep_last).
+        #[arg(long, default_value = "fixtures/variants")]
+        models: PathBuf,
+        /// More WorldPack-policy models (other sizes), as NAME=DIR.
+        #[arg(long = "extra", value_parser = parse_named_path)]
+        extra: Vec<(String, PathBuf)>,
+        /// Sampler steps per predicted frame.
+        #[arg(long, default_value_t = 10, value_parser = clap::value_parser!(u64).range(1..=1000))]
+        steps: u64,
+        /// Also run WorldPack at these step counts (comma-separated).
+        #[arg(long, value_delimiter = ',', default_value = "4,20")]
+        sweep_steps: Vec<usize>,
+        /// Sampler: ddim (deterministic) or ancestral.
+        #[arg(long, default_value = "ddim", value_parser = parse_method)]
+        method: model::Method,
+        /// Score every n-th return-leg frame.
+        #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u64).range(1..=10_000))]
+        stride: u64,
+        /// Frames predicted per denoiser call.
+        #[arg(long, default_value_t = 16, value_parser = clap::value_parser!(u64).range(1..=1024))]
+        batch: u64,
+        /// Batch-1 predictions timed per row for the latency axis.
+        #[arg(long, default_value_t = 20, value_parser = clap::value_parser!(u64).range(1..=10_000))]
+        latency_calls: u64,
+        /// Only the first n trajectories of the suite.
+        #[arg(long)]
+        limit: Option<usize>,
+        /// Add a condition whose poses come from this file in each trajectory folder
+        /// (`scripts/visual_odometry.py` writes poses-vo.npy).
+        #[arg(long)]
+        vo: Option<String>,
+        /// Only the noise-free condition and the two mildest noise levels.
+        #[arg(long)]
+        quick: bool,
+        #[arg(long, default_value = "cpu", value_parser = parse_provider)]
+        provider: model::Provider,
+        /// Intra-op threads per model session.
+        #[arg(long, default_value_t = 2)]
+        threads: usize,
+        /// Folder for the saved conditions and study.json.
+        #[arg(long, default_value = "runs/study")]
+        out: PathBuf,
     },
     /// LoopNav-style evaluation: observe each trajectory's exploration, roll out its return leg
     /// autoregressively under each policy with its own weights, and score PSNR and SSIM per frame.
@@ -443,6 +493,29 @@ fn main() -> ExitCode {
                 out,
             };
             report(probe::run(&options), "probe")
+        }
+        Command::Study { suite, models, extra, steps, sweep_steps, method, stride, batch, latency_calls, limit, vo, quick, provider, threads, out } => {
+            if let Some(bad) = sweep_steps.iter().find(|&&n| n == 0 || n > 1000) {
+                eprintln!("worldpack study: --sweep-steps must lie in 1..=1000, got {bad}");
+                return ExitCode::from(2);
+            }
+            let options = study::Options {
+                suite,
+                models,
+                extra,
+                steps: steps as usize,
+                sweep_steps,
+                method,
+                stride: stride as usize,
+                batch: batch as usize,
+                latency_calls: latency_calls as usize,
+                limit,
+                runtime: model::RuntimeOptions { provider, threads },
+                vo,
+                quick,
+                out,
+            };
+            report(study::run(&options), "study")
         }
         Command::Eval { suite, models, policies, no_references, steps, method, max_frames, limit, batch, provider, threads, out, lpips, dreamsim, fvd } => {
             let options = eval::Options {

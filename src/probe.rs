@@ -89,7 +89,7 @@ struct Contrast {
 
 const BOOTSTRAP_REPS: usize = 4000;
 
-fn load(dir: &Path, runtime: RuntimeOptions) -> Result<Model> {
+pub fn load(dir: &Path, runtime: RuntimeOptions) -> Result<Model> {
     Model::load(dir, runtime).with_context(|| format!("loading the model in {}", dir.display()))
 }
 
@@ -194,7 +194,7 @@ pub fn run(o: &Options) -> Result<()> {
 }
 
 /// The latents of `traj` under a model, encoded once per model (rows share models).
-fn latent_cache(traj: &Trajectory) -> impl FnMut(&Model) -> Result<Rc<Vec<Vec<f32>>>, ProbeError> + '_ {
+pub fn latent_cache(traj: &Trajectory) -> impl FnMut(&Model) -> Result<Rc<Vec<Vec<f32>>>, ProbeError> + '_ {
     let mut cache: Vec<(*const Model, Rc<Vec<Vec<f32>>>)> = Vec::new();
     move |m| {
         if let Some((_, l)) = cache.iter().find(|(p, _)| std::ptr::eq(*p, m)) {

@@ -4,8 +4,10 @@
 
 pub mod features;
 pub mod metrics;
+pub mod noise;
 pub mod probe;
 pub mod reproject;
 pub mod rollout;
 pub mod stats;
+pub mod strata;
 pub mod suite;

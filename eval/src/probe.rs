@@ -67,7 +67,7 @@ pub struct FrameScore {
 
 /// One trajectory's scores: `rows[i]` belongs to the i-th row, frames in the
 /// same order for every row (so differences pair up).
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, serde::Deserialize)]
 pub struct TrajectoryScores {
     pub dir: String,
     pub task: String,

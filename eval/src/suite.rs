@@ -80,7 +80,33 @@ fn array<T: npy::Element>(dir: &Path, name: &str, tail: &[usize]) -> Result<(usi
     Ok((shape[0], data))
 }
 
+/// (T, 4, 4) camera-to-world matrices (OpenCV axes) from `dir/name`.
+fn read_poses(dir: &Path, name: &str) -> Result<(usize, Vec<Pose>), SuiteError> {
+    let (n, m) = array::<f64>(dir, name, &[4, 4])?;
+    let poses = m
+        .chunks_exact(16)
+        .enumerate()
+        .map(|(t, m)| {
+            let rows = [0, 1, 2, 3].map(|i| [m[4 * i], m[4 * i + 1], m[4 * i + 2], m[4 * i + 3]]);
+            Pose::from_matrix_rows(rows).map_err(|e| bad(&dir.join(name), format!("frame {t}: {e}")))
+        })
+        .collect::<Result<Vec<_>, _>>()?;
+    Ok((n, poses))
+}
+
 impl Trajectory {
+    /// Other poses for this trajectory's frames, e.g. estimated by visual
+    /// odometry (`scripts/visual_odometry.py` writes `poses-vo.npy`).
+    pub fn believed_poses(&self, suite: &Path, name: &str) -> Result<Vec<Pose>, SuiteError> {
+        let dir = suite.join(&self.entry.dir);
+        let (n, poses) = read_poses(&dir, name)?;
+        if n != self.len() {
+            return Err(bad(&dir.join(name), format!("has {n} poses but the trajectory has {} frames", self.len())));
+        }
+        Ok(poses)
+    }
+
+
     pub fn load(suite: &Path, entry: &Entry) -> Result<Trajectory, SuiteError> {
         let dir = suite.join(&entry.dir);
         let meta_path = dir.join("meta.json");
@@ -91,20 +117,12 @@ impl Trajectory {
         let (w, h) = (k.width as usize, k.height as usize);
         let (n, rgb) = array::<u8>(&dir, "rgb.npy", &[h, w, 3])?;
         let (nd, depth_mm) = array::<u16>(&dir, "depth.npy", &[h, w])?;
-        let (np, m) = array::<f64>(&dir, "poses.npy", &[4, 4])?;
+        let (np, poses) = read_poses(&dir, "poses.npy")?;
         let (nph, phase) = array::<u8>(&dir, "phase.npy", &[])?;
         let (na, a) = array::<f32>(&dir, "actions.npy", &[7])?;
         if [nd, np, nph, na] != [n; 4] {
             return Err(bad(&dir, format!("arrays disagree on the frame count: rgb {n}, depth {nd}, poses {np}, phase {nph}, actions {na}")));
         }
-        let poses = m
-            .chunks_exact(16)
-            .enumerate()
-            .map(|(t, m)| {
-                let rows = [0, 1, 2, 3].map(|i| [m[4 * i], m[4 * i + 1], m[4 * i + 2], m[4 * i + 3]]);
-                Pose::from_matrix_rows(rows).map_err(|e| bad(&dir.join("poses.npy"), format!("frame {t}: {e}")))
-            })
-            .collect::<Result<Vec<_>, _>>()?;
         let actions = a.chunks_exact(7).map(|c| c.try_into().expect("chunks of 7")).collect();
         Ok(Trajectory { entry: entry.clone(), intrinsics: k, rgb, depth_mm, poses, phase, actions })
     }

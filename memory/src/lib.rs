@@ -23,6 +23,7 @@ pub mod overlap;
 pub mod policy;
 pub mod pose;
 pub mod rng;
+pub mod stability;
 pub mod workload;
 
 pub use camera::Intrinsics;

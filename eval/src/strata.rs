@@ -1,0 +1,194 @@
+//! Where methods fail: return-leg targets grouped by what makes them hard
+//! for a geometric memory (the paper's "Discussion and Limitation"):
+//! views the last few frames do not show, remembered spots hidden behind
+//! nearer geometry, places revisited facing the other way, and memories
+//! far back in time. Every feature comes from the true poses and depth.
+
+use glam::{DVec2, DVec3};
+use memory::{FrameMemory, MemoryFrame};
+use serde::Serialize;
+
+use crate::probe::best_overlap_policy;
+use crate::reproject::DEPTH_UNIT_M;
+use crate::suite::{RETURN_PHASE, SuiteError, Trajectory};
+
+/// What one target asks of the memory.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct TargetFeatures {
+    pub t: usize,
+    /// Share of the target's surface points (pixels with depth) that at
+    /// least one of the [`RECENT_FRAMES`] newest frames shows.
+    pub recent_visible: f64,
+    /// Share that only older frames show: what memory beyond recency can add.
+    pub memory_only: f64,
+    /// Age in frames of the older frame that shows most of that share
+    /// (`None` when no older frame shows any of it).
+    pub memory_age: Option<usize>,
+    /// Of the target's surface points that fall inside the image of the frame
+    /// whose frustum overlaps the target most, the share hidden there behind
+    /// nearer geometry (`None`: no such point).
+    pub occluded: Option<f64>,
+    /// Of exploration frames within [`REVISIT_RADIUS`] blocks, the smallest
+    /// angle (degrees) between their view and the target's (`None`: no
+    /// exploration frame that close).
+    pub revisit_angle_deg: Option<f64>,
+}
+
+pub const RECENT_FRAMES: usize = 4;
+pub const REVISIT_RADIUS: f64 = 3.0;
+
+/// The groups the report breaks results into. Thresholds were fixed before
+/// looking at any model's scores.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Stratum {
+    All,
+    /// At least 10% of the view is shown only by frames older than the 4 newest.
+    MemoryDependent,
+    /// At least 30% of what the best-overlap frame should show is hidden in it.
+    Occluded,
+    /// Back near an explored place, but no frame there looked within 90° of this way.
+    OppositeRevisit,
+    /// That memory-only content is best shown by a frame 100 or more frames old.
+    LongHorizon,
+}
+
+impl Stratum {
+    pub const ALL: [Stratum; 5] = [Stratum::All, Stratum::MemoryDependent, Stratum::Occluded, Stratum::OppositeRevisit, Stratum::LongHorizon];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Stratum::All => "all",
+            Stratum::MemoryDependent => "memory_dependent",
+            Stratum::Occluded => "occluded",
+            Stratum::OppositeRevisit => "opposite_revisit",
+            Stratum::LongHorizon => "long_horizon",
+        }
+    }
+
+    pub fn describe(self) -> &'static str {
+        match self {
+            Stratum::All => "every return-leg target",
+            Stratum::MemoryDependent => "≥ 10% of the view is shown only by frames older than the 4 newest",
+            Stratum::Occluded => "≥ 30% of the best-overlap frame's in-view points are hidden in it",
+            Stratum::OppositeRevisit => "within 3 blocks of an explored pose, none facing within 90°",
+            Stratum::LongHorizon => "memory-dependent, and the frame showing most of that memory is ≥ 100 frames old",
+        }
+    }
+
+    pub fn contains(self, f: &TargetFeatures) -> bool {
+        match self {
+            Stratum::All => true,
+            Stratum::MemoryDependent => f.memory_only >= 0.1,
+            Stratum::Occluded => f.occluded.is_some_and(|o| o >= 0.3),
+            Stratum::OppositeRevisit => f.revisit_angle_deg.is_some_and(|a| a > 90.0),
+            Stratum::LongHorizon => f.memory_only >= 0.1 && f.memory_age.is_some_and(|a| a >= 100),
+        }
+    }
+}
+
+/// The world points of frame `t`'s pixels that have depth.
+fn surface_points(traj: &Trajectory, t: usize) -> Vec<DVec3> {
+    let k = &traj.intrinsics;
+    let w = k.width as usize;
+    traj.depth(t)
+        .iter()
+        .enumerate()
+        .filter(|(_, d)| **d > 0)
+        .map(|(i, &d)| traj.poses[t].camera_to_world(k.unproject(DVec2::new((i % w) as f64, (i / w) as f64), d as f64 * DEPTH_UNIT_M)))
+        .collect()
+}
+
+/// Where a world point stands for frame `src`.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Sight {
+    /// Behind the camera, outside the image, or where it saw only sky.
+    Outside,
+    /// Inside the image, with something nearer in front (by more than 5% + 0.1 block).
+    Hidden,
+    Visible,
+}
+
+fn sight(traj: &Trajectory, src: usize, p: DVec3) -> Sight {
+    let k = &traj.intrinsics;
+    let (w, h) = (k.width as usize, k.height as usize);
+    let q = traj.poses[src].world_to_camera(p);
+    if q.z <= k.near {
+        return Sight::Outside;
+    }
+    let Some(uv) = k.project(q) else { return Sight::Outside };
+    let (x, y) = (uv.x.round(), uv.y.round());
+    if x < 0.0 || y < 0.0 || x >= w as f64 || y >= h as f64 {
+        return Sight::Outside;
+    }
+    match traj.depth(src)[y as usize * w + x as usize] {
+        0 => Sight::Outside,
+        seen if q.z > seen as f64 * DEPTH_UNIT_M * 1.05 + 0.1 => Sight::Hidden,
+        _ => Sight::Visible,
+    }
+}
+
+/// Share of `points` inside frame `src`'s image that are hidden there.
+pub fn occluded_share(traj: &Trajectory, src: usize, points: &[DVec3]) -> Option<f64> {
+    let (mut inside, mut hidden) = (0usize, 0usize);
+    for &p in points {
+        match sight(traj, src, p) {
+            Sight::Outside => {}
+            Sight::Hidden => {
+                inside += 1;
+                hidden += 1;
+            }
+            Sight::Visible => inside += 1,
+        }
+    }
+    (inside > 0).then(|| hidden as f64 / inside as f64)
+}
+
+/// The features of each of `targets` (increasing frame indices).
+pub fn features(traj: &Trajectory, targets: &[usize]) -> Result<Vec<TargetFeatures>, SuiteError> {
+    let frusta = traj.frusta()?;
+    let best = best_overlap_policy();
+    let mut store = FrameMemory::new();
+    let mut out = Vec::with_capacity(targets.len());
+    let mut next = targets.iter().peekable();
+    let explored: Vec<usize> = (0..traj.len()).filter(|&i| traj.phase[i] != RETURN_PHASE).collect();
+    for (t, frustum) in frusta.iter().enumerate() {
+        if next.peek() == Some(&&t) {
+            next.next();
+            let points = surface_points(traj, t);
+            let n = points.len().max(1) as f64;
+            let recent = t.saturating_sub(RECENT_FRAMES);
+            let mut seen: Vec<bool> = points.iter().map(|&p| (recent..t).any(|i| sight(traj, i, p) == Sight::Visible)).collect();
+            let recent_visible = seen.iter().filter(|&&s| s).count() as f64 / n;
+            // Older frames, best first by how much of the rest they show.
+            let mut gains: Vec<(usize, Vec<usize>)> = (0..recent)
+                .filter(|&i| frusta[i].aabb().intersects(frustum.aabb()))
+                .map(|i| (i, (0..points.len()).filter(|&j| !seen[j] && sight(traj, i, points[j]) == Sight::Visible).collect::<Vec<_>>()))
+                .filter(|(_, g)| !g.is_empty())
+                .collect();
+            gains.sort_by_key(|(i, g)| (std::cmp::Reverse(g.len()), std::cmp::Reverse(*i)));
+            let memory_age = gains.first().map(|(i, _)| t - i);
+            for (_, g) in &gains {
+                for &j in g {
+                    seen[j] = true;
+                }
+            }
+            let memory_only = seen.iter().filter(|&&s| s).count() as f64 / n - recent_visible;
+            let (plan, _) = store.select(&best, frustum, None);
+            let src = plan.selected().next().map_or(t - 1, |(_, f)| f.id as usize);
+            let here = traj.poses[t];
+            let revisit_angle_deg = explored
+                .iter()
+                .filter(|&&i| i < t && traj.poses[i].position().distance(here.position()) <= REVISIT_RADIUS)
+                .map(|&i| traj.poses[i].forward().angle_between(here.forward()).to_degrees())
+                .reduce(f64::min);
+            out.push(TargetFeatures { t, recent_visible, memory_only, memory_age, occluded: occluded_share(traj, src, &points), revisit_angle_deg });
+        }
+        if next.peek().is_none() {
+            break;
+        }
+        store
+            .insert(MemoryFrame { id: t as u64, time: t as u64, frustum: frustum.clone() })
+            .expect("frame ids are new and increasing");
+    }
+    Ok(out)
+}

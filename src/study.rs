@@ -1,0 +1,565 @@
+//! `worldpack study`: speed against accuracy, stability under pose noise,
+//! and the places where methods fail (docs/results.md).
+//!
+//! Every number is the teacher-forced return-leg probe of `eval::probe`
+//! (docs/probe.md) run under a *condition*: the suite as it is, with another
+//! frustum `far`, or with believed poses that differ from the true ones
+//! (Gaussian noise, drifting odometry, or poses estimated by OpenCV visual
+//! odometry). Targets and sampler noise are the same in every condition, so
+//! all differences pair frame by frame. Each condition is saved under
+//! `OUT/conditions/` and reused while its settings match.
+
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+use std::rc::Rc;
+use std::time::Instant;
+
+use anyhow::{Context, Result, bail};
+use eval::noise::{Agreement, PoseNoise, pose_error, selection_agreement};
+use eval::probe::{FrameScore, Predictor, ProbeError, Row, Settings, TrajectoryScores, encode_all, latency_ms, probe_trajectory};
+use eval::stats::{Interval, cluster_bootstrap, mean_std};
+use eval::strata::{Stratum, TargetFeatures, features};
+use eval::suite::Trajectory;
+use memory::overlap::MonteCarlo;
+use memory::{Estimator, Policy, PolicyKind};
+use model::{Method, Model, RuntimeOptions, Sampler};
+use serde::{Deserialize, Serialize};
+
+use crate::probe::{VARIANTS, load, variant_policy};
+use crate::sim::bar;
+
+pub struct Options {
+    pub suite: PathBuf,
+    pub models: PathBuf,
+    pub extra: Vec<(String, PathBuf)>,
+    pub steps: usize,
+    pub sweep_steps: Vec<usize>,
+    pub method: Method,
+    pub stride: usize,
+    pub batch: usize,
+    pub latency_calls: usize,
+    pub limit: Option<usize>,
+    pub runtime: RuntimeOptions,
+    /// A poses file in every trajectory folder (from `scripts/visual_odometry.py`).
+    pub vo: Option<String>,
+    /// Only the noise-free condition and the two mildest noise levels (for tests).
+    pub quick: bool,
+    pub out: PathBuf,
+}
+
+/// What a condition changes about the suite.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum Change {
+    Clean,
+    Far { far: f64 },
+    Noise { noise: PoseNoise },
+    Poses { file: String },
+}
+
+/// Trade-off rows are grouped by what they vary, for the chart's legend.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+enum Group {
+    Policy,
+    KeepLast,
+    Steps,
+    Estimator,
+    Far,
+    Size,
+    Reference,
+}
+
+#[derive(Clone)]
+enum What {
+    Model { model: usize, policy: Policy, steps: usize },
+    Copy,
+    Reproject,
+}
+
+#[derive(Clone)]
+struct RowSpec {
+    name: String,
+    group: Group,
+    what: What,
+}
+
+struct Condition {
+    name: String,
+    change: Change,
+    rows: Vec<RowSpec>,
+    /// Time each row (only where the condition can change the cost).
+    timed: bool,
+}
+
+/// What fixes a condition's numbers; a saved one is reused only when it matches.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+struct Key {
+    condition: String,
+    change: Change,
+    suite: String,
+    trajectories: Vec<String>,
+    rows: Vec<String>,
+    models: Vec<Option<String>>,
+    stride: usize,
+    steps: Vec<Option<usize>>,
+    method: String,
+    batch: usize,
+    latency_calls: Option<usize>,
+}
+
+#[derive(Serialize, Deserialize)]
+struct Saved {
+    key: Key,
+    latency_ms: Vec<Option<f64>>,
+    scores: Vec<TrajectoryScores>,
+    /// Per selection policy, per trajectory, per target.
+    agreement: Vec<(String, Vec<Vec<Agreement>>)>,
+    /// Mean believed-pose error over every frame: (blocks, degrees).
+    pose_error: (f64, f64),
+    wall_s: f64,
+}
+
+const BOOTSTRAP_REPS: usize = 2000;
+const NOISE_SEED: u64 = 0x5eed_0f_0d0;
+
+/// The selection policies whose choice pose noise can change (and the two
+/// recency policies, as a check that it changes nothing there).
+fn selection_policies() -> Vec<(String, Policy)> {
+    let mut out: Vec<(String, Policy)> = VARIANTS.iter().map(|n| (n.to_string(), variant_policy(n).expect("a variant"))).collect();
+    out.push(("worldmem_greedy".into(), Policy::preset(PolicyKind::WorldMemGreedy)));
+    out
+}
+
+fn noise_conditions(quick: bool, vo: &Option<String>) -> Vec<(String, Change)> {
+    let independent = |t: f64, r: f64| Change::Noise { noise: PoseNoise::Independent { translation: t, rotation_deg: r } };
+    let mut out = vec![("translation σ 0.25".to_string(), independent(0.25, 0.0)), ("rotation σ 2.5°".into(), independent(0.0, 2.5))];
+    if !quick {
+        out.extend([
+            ("translation σ 0.5".to_string(), independent(0.5, 0.0)),
+            ("translation σ 1".into(), independent(1.0, 0.0)),
+            ("rotation σ 5°".into(), independent(0.0, 5.0)),
+            ("rotation σ 10°".into(), independent(0.0, 10.0)),
+            ("drift 0.02/step, 0.2°/step".into(), Change::Noise { noise: PoseNoise::Drift { translation: 0.02, rotation_deg: 0.2 } }),
+        ]);
+    }
+    if let Some(file) = vo {
+        out.push(("OpenCV visual odometry".into(), Change::Poses { file: file.clone() }));
+    }
+    out
+}
+
+/// The suite as a condition sees it.
+fn transform(traj: &Trajectory, change: &Change, suite: &Path, index: usize) -> Result<Trajectory> {
+    let mut t = Trajectory { entry: traj.entry.clone(), intrinsics: traj.intrinsics, rgb: traj.rgb.clone(), depth_mm: traj.depth_mm.clone(), poses: traj.poses.clone(), phase: traj.phase.clone(), actions: traj.actions.clone() };
+    match change {
+        Change::Clean => {}
+        Change::Far { far } => t.intrinsics = traj.intrinsics.with_range(traj.intrinsics.near, *far).context("far")?,
+        Change::Noise { noise } => t.poses = eval::noise::apply(&traj.poses, *noise, NOISE_SEED ^ (index as u64).wrapping_mul(0x9e37_79b9)),
+        Change::Poses { file } => t.poses = traj.believed_poses(suite, file)?,
+    }
+    Ok(t)
+}
+
+pub fn run(o: &Options) -> Result<()> {
+    if o.stride == 0 || o.batch == 0 {
+        bail!("--stride and --batch must be at least 1");
+    }
+    let trajectories = eval::suite::load(&o.suite, o.limit)?;
+    if let Some(file) = &o.vo {
+        // Fail before hours of work, naming the first trajectory without the file.
+        for t in &trajectories {
+            t.believed_poses(&o.suite, file).with_context(|| format!("--vo {file}"))?;
+        }
+    }
+    let mut models: Vec<(String, Model)> = Vec::new();
+    for name in VARIANTS {
+        let dir = o.models.join(name);
+        if !dir.join("manifest.json").exists() {
+            bail!("--models: {} has no {name}/ model folder; the study runs every trained variant", o.models.display());
+        }
+        models.push((name.to_string(), load(&dir, o.runtime)?));
+    }
+    for (name, dir) in &o.extra {
+        models.push((name.clone(), load(dir, o.runtime)?));
+    }
+    let model_index = |name: &str| models.iter().position(|m| m.0 == name).expect("loaded above");
+    let variant = |name: &str, group| RowSpec {
+        name: name.into(),
+        group,
+        what: What::Model { model: model_index(name), policy: variant_policy(name).expect("a variant"), steps: o.steps },
+    };
+    let wp = model_index("worldpack");
+    let wp_policy = Policy::preset(PolicyKind::WorldPack);
+    let references = [RowSpec { name: "copy".into(), group: Group::Reference, what: What::Copy }, RowSpec { name: "reproject".into(), group: Group::Reference, what: What::Reproject }];
+    let mut variants: Vec<RowSpec> = VARIANTS[..4].iter().map(|n| variant(n, Group::Policy)).collect();
+    variants.push(variant("worldpack_keep_last", Group::KeepLast));
+
+    // The noise-free condition carries every speed/accuracy point.
+    let mut clean = variants.clone();
+    clean.push(RowSpec {
+        name: "worldmem_greedy".into(),
+        group: Group::Policy,
+        what: What::Model { model: model_index("memory_retrieval"), policy: Policy::preset(PolicyKind::WorldMemGreedy), steps: o.steps },
+    });
+    for &s in o.sweep_steps.iter().filter(|&&s| s != o.steps) {
+        clean.push(RowSpec { name: format!("worldpack, {s} steps"), group: Group::Steps, what: What::Model { model: wp, policy: wp_policy.clone(), steps: s } });
+    }
+    for samples in [1000, 10_000] {
+        let policy = Policy { estimator: Estimator::MonteCarlo(MonteCarlo { samples, seed: 0 }), ..wp_policy.clone() };
+        clean.push(RowSpec { name: format!("worldpack, Monte Carlo {samples}"), group: Group::Estimator, what: What::Model { model: wp, policy, steps: o.steps } });
+    }
+    for (name, _) in &o.extra {
+        clean.push(RowSpec { name: name.clone(), group: Group::Size, what: What::Model { model: model_index(name), policy: wp_policy.clone(), steps: o.steps } });
+    }
+    clean.extend(references.clone());
+
+    let mut conditions = vec![Condition { name: "clean".into(), change: Change::Clean, rows: clean, timed: true }];
+    if !o.quick {
+        for far in [15.0, 60.0] {
+            let row = RowSpec { name: format!("worldpack, far {far}"), group: Group::Far, what: What::Model { model: wp, policy: wp_policy.clone(), steps: o.steps } };
+            conditions.push(Condition { name: format!("far {far}"), change: Change::Far { far }, rows: vec![row], timed: true });
+        }
+    }
+    for (name, change) in noise_conditions(o.quick, &o.vo) {
+        let mut rows = variants.clone();
+        rows.extend(references.clone());
+        conditions.push(Condition { name, change, rows, timed: false });
+    }
+
+    let dir = o.out.join("conditions");
+    std::fs::create_dir_all(&dir).with_context(|| format!("--out {}", o.out.display()))?;
+    let targets: usize = trajectories.iter().map(|t| t.return_frames(o.stride).len()).sum();
+    eprintln!("study: {} trajectories, {} return-leg targets, {} conditions, {} {:?} steps", trajectories.len(), targets, conditions.len(), o.steps, o.method);
+
+    let mut latents: HashMap<(usize, usize), Rc<Vec<Vec<f32>>>> = HashMap::new();
+    let mut results: Vec<(Condition, Saved)> = Vec::new();
+    for (ci, c) in conditions.into_iter().enumerate() {
+        let key = Key {
+            condition: c.name.clone(),
+            change: c.change.clone(),
+            suite: o.suite.display().to_string(),
+            trajectories: trajectories.iter().map(|t| t.entry.dir.clone()).collect(),
+            rows: c.rows.iter().map(|r| r.name.clone()).collect(),
+            models: c.rows.iter().map(|r| if let What::Model { model, .. } = r.what { Some(models[model].1.dir().display().to_string()) } else { None }).collect(),
+            stride: o.stride,
+            steps: c.rows.iter().map(|r| if let What::Model { steps, .. } = r.what { Some(steps) } else { None }).collect(),
+            method: format!("{:?}", o.method).to_lowercase(),
+            batch: o.batch,
+            latency_calls: c.timed.then_some(o.latency_calls),
+        };
+        let path = dir.join(format!("{ci:02}.json"));
+        if let Some(saved) = std::fs::read_to_string(&path).ok().and_then(|t| serde_json::from_str::<Saved>(&t).ok()).filter(|s| s.key == key) {
+            eprintln!("study: {} reused from {}", c.name, path.display());
+            results.push((c, saved));
+            continue;
+        }
+        let saved = run_condition(o, &c, key, &trajectories, &models, &mut latents)?;
+        std::fs::write(&path, serde_json::to_string(&saved)?).with_context(|| format!("writing {}", path.display()))?;
+        results.push((c, saved));
+    }
+
+    let strata: Vec<Vec<TargetFeatures>> = trajectories.iter().map(|t| features(t, &t.return_frames(o.stride))).collect::<Result<_, _>>()?;
+    let summary = summarise(&results, &strata, &models);
+    print(&summary);
+    let path = o.out.join("study.json");
+    let json = serde_json::json!({
+        "format": "worldpack-study/1",
+        "suite": o.suite,
+        "models": o.models,
+        "trajectories": trajectories.len(),
+        "targets": targets,
+        "stride": o.stride,
+        "sampler": { "method": format!("{:?}", o.method).to_lowercase(), "steps": o.steps },
+        "bootstrap": { "reps": BOOTSTRAP_REPS, "resampled": "trajectories", "level": 0.95 },
+        "tradeoff": summary.tradeoff,
+        "noise": summary.noise,
+        "strata": summary.strata,
+        "wall_s": results.iter().map(|(c, s)| (c.name.clone(), s.wall_s)).collect::<Vec<_>>(),
+    });
+    std::fs::write(&path, serde_json::to_string_pretty(&json)?).with_context(|| format!("writing {}", path.display()))?;
+    println!("wrote {}", path.display());
+    Ok(())
+}
+
+fn run_condition(
+    o: &Options,
+    c: &Condition,
+    key: Key,
+    trajectories: &[Trajectory],
+    models: &[(String, Model)],
+    latents: &mut HashMap<(usize, usize), Rc<Vec<Vec<f32>>>>,
+) -> Result<Saved> {
+    let start = Instant::now();
+    let rows: Vec<Row> = c
+        .rows
+        .iter()
+        .map(|r| {
+            let predictor = match &r.what {
+                What::Model { model, policy, steps } => {
+                    let m = &models[*model].1;
+                    Predictor::Model { model: m, policy: policy.clone(), sampler: Sampler::new(&m.manifest().diffusion, *steps, o.method, 0.0)? }
+                }
+                What::Copy => Predictor::Copy,
+                What::Reproject => Predictor::Reproject,
+            };
+            Ok(Row { name: r.name.clone(), predictor })
+        })
+        .collect::<Result<_>>()?;
+    let model_of = |m: &Model| models.iter().position(|(_, x)| std::ptr::eq(x, m)).expect("a loaded model");
+    let mut latents_of = |ti: usize, traj: &Trajectory, m: &Model| -> Result<Rc<Vec<Vec<f32>>>, ProbeError> {
+        // Latents depend on the frames only, never on the poses: shared by every condition.
+        let k = (ti, model_of(m));
+        if let Some(l) = latents.get(&k) {
+            return Ok(l.clone());
+        }
+        let l = Rc::new(encode_all(m, traj)?);
+        latents.insert(k, l.clone());
+        Ok(l)
+    };
+
+    let mut latency = vec![None; rows.len()];
+    if c.timed {
+        let first = transform(&trajectories[0], &c.change, &o.suite, 0)?;
+        for (i, row) in rows.iter().enumerate() {
+            let l = match &row.predictor {
+                Predictor::Model { model, .. } => latents_of(0, &first, model)?,
+                _ => Rc::default(),
+            };
+            latency[i] = Some(latency_ms(&first, row, &l, o.latency_calls)?);
+        }
+    }
+
+    let settings = Settings { stride: o.stride, batch: o.batch, seed: 20261121 };
+    let targets: usize = trajectories.iter().map(|t| t.return_frames(o.stride).len()).sum();
+    let progress = bar(targets * rows.len(), &format!("study: {}", c.name));
+    let policies = selection_policies();
+    let mut scores = Vec::new();
+    let mut agreement: Vec<(String, Vec<Vec<Agreement>>)> = policies.iter().map(|(n, _)| (n.clone(), Vec::new())).collect();
+    let (mut err_d, mut err_r, mut frames) = (0.0, 0.0, 0usize);
+    for (ti, traj) in trajectories.iter().enumerate() {
+        progress.set_message(traj.entry.dir.clone());
+        let seen = transform(traj, &c.change, &o.suite, ti)?;
+        scores.push(probe_trajectory(&seen, &rows, &settings, &mut |m| latents_of(ti, traj, m), &|n| progress.inc(n as u64))?);
+        if matches!(c.change, Change::Noise { .. } | Change::Poses { .. }) {
+            let (truth, believed) = (traj.frusta()?, seen.frusta()?);
+            let at = traj.return_frames(o.stride);
+            for ((_, policy), (_, out)) in policies.iter().zip(agreement.iter_mut()) {
+                out.push(selection_agreement(policy, &truth, &believed, &at));
+            }
+            let (d, r) = pose_error(&traj.poses, &seen.poses);
+            err_d += d * traj.len() as f64;
+            err_r += r * traj.len() as f64;
+            frames += traj.len();
+        }
+    }
+    progress.finish();
+    if frames == 0 {
+        agreement.clear();
+    }
+    let n = frames.max(1) as f64;
+    Ok(Saved { key, latency_ms: latency, scores, agreement, pose_error: (err_d / n, err_r / n), wall_s: start.elapsed().as_secs_f64() })
+}
+
+#[derive(Serialize)]
+struct TradeoffPoint {
+    name: String,
+    group: Group,
+    condition: String,
+    latency_ms: f64,
+    psnr: f64,
+    ssim: f64,
+    psnr_vs_baseline: Interval,
+    parameters: Option<u64>,
+    steps: Option<usize>,
+    /// No other point is both at least as fast and at least as accurate (and better in one).
+    pareto: bool,
+}
+
+#[derive(Serialize)]
+struct NoiseRow {
+    row: String,
+    psnr: f64,
+    /// Against the same row without noise, frame by frame.
+    psnr_vs_clean: Interval,
+}
+
+#[derive(Serialize)]
+struct NoiseSelection {
+    policy: String,
+    jaccard: f64,
+    rank: f64,
+}
+
+#[derive(Serialize)]
+struct NoiseCondition {
+    condition: String,
+    change: Change,
+    pose_error_blocks: f64,
+    pose_error_deg: f64,
+    rows: Vec<NoiseRow>,
+    selection: Vec<NoiseSelection>,
+}
+
+#[derive(Serialize)]
+struct StratumRow {
+    row: String,
+    psnr: f64,
+    psnr_vs_baseline: Option<Interval>,
+}
+
+#[derive(Serialize)]
+struct StratumSummary {
+    stratum: &'static str,
+    description: &'static str,
+    targets: usize,
+    trajectories: usize,
+    rows: Vec<StratumRow>,
+}
+
+struct Summary {
+    tradeoff: Vec<TradeoffPoint>,
+    noise: Vec<NoiseCondition>,
+    strata: Vec<StratumSummary>,
+}
+
+/// Per-trajectory paired differences of row `a` in `x` and row `b` in `y`,
+/// over the targets that `keep` selects.
+fn paired(x: &[TrajectoryScores], a: usize, y: &[TrajectoryScores], b: usize, keep: &dyn Fn(usize, &FrameScore) -> bool) -> Vec<Vec<f64>> {
+    x.iter()
+        .zip(y)
+        .enumerate()
+        .map(|(ti, (tx, ty))| tx.rows[a].iter().zip(&ty.rows[b]).filter(|(f, _)| keep(ti, f)).map(|(f, g)| f.psnr - g.psnr).collect())
+        .collect()
+}
+
+fn column(x: &[TrajectoryScores], a: usize, metric: fn(&FrameScore) -> f64, keep: &dyn Fn(usize, &FrameScore) -> bool) -> Vec<f64> {
+    x.iter().enumerate().flat_map(|(ti, t)| t.rows[a].iter().filter(move |f| keep(ti, f)).map(metric)).collect()
+}
+
+fn summarise(results: &[(Condition, Saved)], strata: &[Vec<TargetFeatures>], models: &[(String, Model)]) -> Summary {
+    let all = |_: usize, _: &FrameScore| true;
+    let (clean_c, clean) = &results[0];
+    let row_index = |c: &Condition, name: &str| c.rows.iter().position(|r| r.name == name);
+    let base = row_index(clean_c, "baseline").expect("the clean condition runs the baseline");
+
+    let mut tradeoff: Vec<TradeoffPoint> = Vec::new();
+    for (c, s) in results.iter().filter(|(c, _)| c.timed) {
+        for (i, r) in c.rows.iter().enumerate() {
+            let (parameters, steps) = match &r.what {
+                What::Model { model, steps, .. } => (models[*model].1.manifest().denoiser.parameters, Some(*steps)),
+                _ => (None, None),
+            };
+            tradeoff.push(TradeoffPoint {
+                name: r.name.clone(),
+                group: r.group,
+                condition: c.name.clone(),
+                latency_ms: s.latency_ms[i].unwrap_or(f64::NAN),
+                psnr: mean_std(&column(&s.scores, i, |f| f.psnr, &all)).0,
+                ssim: mean_std(&column(&s.scores, i, |f| f.ssim, &all)).0,
+                psnr_vs_baseline: cluster_bootstrap(&paired(&s.scores, i, &clean.scores, base, &all), BOOTSTRAP_REPS, 3),
+                parameters,
+                steps,
+                pareto: false,
+            });
+        }
+    }
+    let dominated = |p: &TradeoffPoint, q: &TradeoffPoint| q.latency_ms <= p.latency_ms && q.psnr >= p.psnr && (q.latency_ms < p.latency_ms || q.psnr > p.psnr);
+    let front: Vec<bool> = tradeoff.iter().map(|p| !tradeoff.iter().any(|q| dominated(p, q))).collect();
+    for (p, f) in tradeoff.iter_mut().zip(front) {
+        p.pareto = f;
+    }
+
+    let noise = results
+        .iter()
+        .filter(|(c, _)| matches!(c.change, Change::Noise { .. } | Change::Poses { .. }))
+        .map(|(c, s)| NoiseCondition {
+            condition: c.name.clone(),
+            change: c.change.clone(),
+            pose_error_blocks: s.pose_error.0,
+            pose_error_deg: s.pose_error.1,
+            rows: c
+                .rows
+                .iter()
+                .enumerate()
+                .map(|(i, r)| {
+                    let j = row_index(clean_c, &r.name).expect("noise rows also run clean");
+                    NoiseRow {
+                        row: r.name.clone(),
+                        psnr: mean_std(&column(&s.scores, i, |f| f.psnr, &all)).0,
+                        psnr_vs_clean: cluster_bootstrap(&paired(&s.scores, i, &clean.scores, j, &all), BOOTSTRAP_REPS, 5),
+                    }
+                })
+                .collect(),
+            selection: s
+                .agreement
+                .iter()
+                .map(|(policy, per)| {
+                    let flat: Vec<&Agreement> = per.iter().flatten().collect();
+                    let ranks: Vec<f64> = flat.iter().filter_map(|a| a.rank).collect();
+                    NoiseSelection {
+                        policy: policy.clone(),
+                        jaccard: mean_std(&flat.iter().map(|a| a.jaccard).collect::<Vec<_>>()).0,
+                        rank: mean_std(&ranks).0,
+                    }
+                })
+                .collect(),
+        })
+        .collect();
+
+    let strata = Stratum::ALL
+        .iter()
+        .map(|&st| {
+            let keep = |ti: usize, f: &FrameScore| strata[ti].iter().find(|x| x.t == f.t).is_some_and(|x| st.contains(x));
+            let count = column(&clean.scores, base, |f| f.psnr, &keep).len();
+            let trajectories = strata.iter().filter(|s| s.iter().any(|x| st.contains(x))).count();
+            StratumSummary {
+                stratum: st.name(),
+                description: st.describe(),
+                targets: count,
+                trajectories,
+                rows: clean_c
+                    .rows
+                    .iter()
+                    .enumerate()
+                    .filter(|(_, r)| matches!(r.group, Group::Policy | Group::KeepLast | Group::Reference))
+                    .map(|(i, r)| StratumRow {
+                        row: r.name.clone(),
+                        psnr: mean_std(&column(&clean.scores, i, |f| f.psnr, &keep)).0,
+                        psnr_vs_baseline: (i != base && count > 0).then(|| cluster_bootstrap(&paired(&clean.scores, i, &clean.scores, base, &keep), BOOTSTRAP_REPS, 9)),
+                    })
+                    .collect(),
+            }
+        })
+        .collect();
+    Summary { tradeoff, noise, strata }
+}
+
+fn interval(i: &Interval) -> String {
+    format!("{:+.2} [{:+.2}, {:+.2}]", i.mean, i.lo, i.hi)
+}
+
+fn print(s: &Summary) {
+    println!("\nSpeed against accuracy (noise-free; PSNR on return-leg targets; Δ vs the baseline, 95% over trajectories)");
+    println!("{:<32} {:>10} {:>8} {:>7} {:>24} {:>7}", "row", "ms/frame", "PSNR", "SSIM", "ΔPSNR vs baseline", "front");
+    for p in &s.tradeoff {
+        println!("{:<32} {:>10.2} {:>8.2} {:>7.3} {:>24} {:>7}", p.name, p.latency_ms, p.psnr, p.ssim, interval(&p.psnr_vs_baseline), if p.pareto { "*" } else { "" });
+    }
+    println!("\nPose noise: PSNR change against the same row without noise; selection agreement with the noise-free selection");
+    for c in &s.noise {
+        println!("{} (mean pose error {:.2} blocks, {:.2}°)", c.condition, c.pose_error_blocks, c.pose_error_deg);
+        for r in &c.rows {
+            println!("  {:<28} {:>7.2} dB  {}", r.row, r.psnr, interval(&r.psnr_vs_clean));
+        }
+        for a in &c.selection {
+            println!("  selection {:<20} Jaccard {:.3}  rank ρ {:.3}", a.policy, a.jaccard, a.rank);
+        }
+    }
+    println!("\nWhere methods fail (noise-free): PSNR and Δ vs the baseline per stratum");
+    for st in &s.strata {
+        println!("{} — {} ({} targets, {} trajectories)", st.stratum, st.description, st.targets, st.trajectories);
+        for r in &st.rows {
+            println!("  {:<28} {:>7.2}  {}", r.row, r.psnr, r.psnr_vs_baseline.as_ref().map_or("—".into(), interval));
+        }
+    }
+}
