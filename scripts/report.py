@@ -74,6 +74,7 @@ def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("results")
     ap.add_argument("--probe", help="JSON from `worldpack probe --out`")
+    ap.add_argument("--study", help="study.json from `worldpack study` (speed/accuracy chart, pose noise, failure strata)")
     ap.add_argument("--command", default="./scripts/results.sh", help="the command that produced the inputs, quoted in the report")
     ap.add_argument("-o", "--output", required=True)
     a = ap.parse_args()
@@ -179,6 +180,10 @@ def main():
             ci = f"{iv['mean']:+.2f} [{iv['lo']:+.2f}, {iv['hi']:+.2f}]" if iv else "—"
             lines.append(f"| {r['name']} | {r['frames']} | {r['psnr']:.2f} | {r['ssim']:.3f} | {ci} | {r['latency_ms']:.1f} |")
         lines.append("")
+    if a.study:
+        from study_report import markdown as study_markdown
+
+        lines += study_markdown(json.loads(Path(a.study).read_text()), pictures, os.path.relpath(pictures, out.parent))
     out.write_text("\n".join(lines) + "\n")
     print(f"wrote {out} and {pictures}/")
 

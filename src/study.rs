@@ -144,7 +144,7 @@ fn noise_conditions(quick: bool, vo: &Option<String>) -> Vec<(String, Change)> {
         ]);
     }
     if let Some(file) = vo {
-        out.push(("OpenCV visual odometry".into(), Change::Poses { file: file.clone() }));
+        out.push((format!("estimated poses ({file})"), Change::Poses { file: file.clone() }));
     }
     out
 }

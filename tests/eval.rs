@@ -189,3 +189,83 @@ fn bad_arguments_name_what_is_wrong() {
     let _ = std::fs::remove_dir_all(&empty);
     let _ = std::fs::remove_dir_all(&bad_out);
 }
+
+#[test]
+fn study_pairs_every_condition_and_resumes() {
+    let suite = suite("study");
+    // "Estimated" poses that are the true ones: that condition must change nothing at all.
+    for entry in std::fs::read_dir(&suite).unwrap() {
+        let dir = entry.unwrap().path();
+        if dir.join("poses.npy").exists() {
+            std::fs::copy(dir.join("poses.npy"), dir.join("poses-same.npy")).unwrap();
+        }
+    }
+    let out = temp("study-out");
+    let (s, o) = (suite.to_str().unwrap(), out.to_str().unwrap());
+    let args = [
+        "study", "--suite", s, "--out", o, "--quick", "--steps", "2", "--sweep-steps", "1", "--stride", "4", "--latency-calls", "1", "--threads", "1", "--vo",
+        "poses-same.npy",
+    ];
+    ok(&args);
+    let study = json(&out.join("study.json"));
+
+    let points = study["tradeoff"].as_array().unwrap();
+    let names: Vec<&str> = points.iter().map(|p| p["name"].as_str().unwrap()).collect();
+    assert_eq!(
+        names,
+        [
+            "baseline", "nearest_frame_packing", "memory_retrieval", "worldpack", "worldpack_keep_last", "worldmem_greedy", "worldpack, 1 steps",
+            "worldpack, Monte Carlo 1000", "worldpack, Monte Carlo 10000", "copy", "reproject"
+        ]
+    );
+    let at = |p: &Value, k: &str| p[k].as_f64().unwrap();
+    for p in points {
+        assert!(at(p, "latency_ms") > 0.0 && at(p, "psnr") > 5.0, "{p}");
+        // The front flag means exactly "no other point is at least as fast and as accurate".
+        let beaten = points.iter().any(|q| {
+            at(q, "latency_ms") <= at(p, "latency_ms") && at(q, "psnr") >= at(p, "psnr") && (at(q, "latency_ms") < at(p, "latency_ms") || at(q, "psnr") > at(p, "psnr"))
+        });
+        assert_eq!(p["pareto"].as_bool().unwrap(), !beaten, "{}", p["name"]);
+    }
+
+    let noise = study["noise"].as_array().unwrap();
+    let conditions: Vec<&str> = noise.iter().map(|c| c["condition"].as_str().unwrap()).collect();
+    assert_eq!(conditions, ["translation σ 0.25", "rotation σ 2.5°", "estimated poses (poses-same.npy)"]);
+    let same = &noise[2];
+    assert_eq!(at(same, "pose_error_blocks"), 0.0);
+    for r in same["rows"].as_array().unwrap() {
+        assert_eq!(r["psnr_vs_clean"]["mean"].as_f64().unwrap(), 0.0, "{}: the true poses changed a prediction", r["row"]);
+    }
+    for a in same["selection"].as_array().unwrap() {
+        assert_eq!((at(a, "jaccard"), at(a, "rank")), (1.0, 1.0), "{}", a["policy"]);
+    }
+    let rotated = &noise[1];
+    assert!(at(rotated, "pose_error_deg") > 2.0);
+    for a in rotated["selection"].as_array().unwrap() {
+        let policy = a["policy"].as_str().unwrap();
+        if policy == "baseline" || policy == "nearest_frame_packing" {
+            assert_eq!(at(a, "jaccard"), 1.0, "{policy} selects by recency alone");
+        }
+    }
+    let reproject = rotated["rows"].as_array().unwrap().iter().find(|r| r["row"] == "reproject").unwrap();
+    assert!(reproject["psnr_vs_clean"]["mean"].as_f64().unwrap() < 0.0, "warping with wrong poses should cost: {reproject}");
+
+    let strata = study["strata"].as_array().unwrap();
+    assert_eq!(strata.len(), 5);
+    assert_eq!(strata[0]["stratum"], "all");
+    assert_eq!(strata[0]["targets"], study["targets"]);
+    assert!(strata.iter().all(|s| s["targets"].as_u64().unwrap() <= study["targets"].as_u64().unwrap()));
+
+    // A second run reuses every condition and reports the same numbers.
+    let log = ok(&args);
+    assert_eq!(log.matches("reused").count(), 4, "{log}");
+    assert_eq!(json(&out.join("study.json"))["tradeoff"], study["tradeoff"]);
+
+    // A poses file that is not there is named before any work.
+    let bad = run(&["study", "--suite", s, "--out", o, "--quick", "--vo", "nope.npy"]);
+    assert!(!bad.status.success());
+    let err = String::from_utf8_lossy(&bad.stderr);
+    assert!(err.contains("--vo nope.npy"), "{err}");
+    let _ = std::fs::remove_dir_all(&suite);
+    let _ = std::fs::remove_dir_all(&out);
+}
