@@ -233,10 +233,17 @@ pub fn probe_trajectory(
     Ok(TrajectoryScores { dir: traj.entry.dir.clone(), task: traj.entry.task.clone(), range: traj.entry.range, rows: scores })
 }
 
+/// Untimed predictions before the timed ones: a model's first batch-1 calls
+/// are slower (ONNX Runtime sizes its buffers), and measured rows that ran a
+/// model first came out 10–20 ms slower than later rows on the same model.
+const WARM_UP_CALLS: usize = 3;
+
 /// Median wall time (ms) of one prediction, batch 1, selection through
-/// decoded frame, over the first `calls` return frames of `traj`.
+/// decoded frame, over `calls` return frames of `traj` after a few untimed ones.
 pub fn latency_ms(traj: &Trajectory, row: &Row, latents: &[Vec<f32>], calls: usize) -> Result<f64, ProbeError> {
-    let targets: Vec<usize> = traj.return_frames(1).into_iter().take(calls.max(1)).collect();
+    let all = traj.return_frames(1);
+    let warm_up: Vec<usize> = all.iter().copied().take(WARM_UP_CALLS.min(all.len().saturating_sub(1))).collect();
+    let targets: Vec<usize> = all.iter().copied().skip(warm_up.len()).take(calls.max(1)).collect();
     let copy = best_overlap_policy();
     let policy = policy_of(row, &copy);
     let frusta = traj.frusta()?;
@@ -245,7 +252,8 @@ pub fn latency_ms(traj: &Trajectory, row: &Row, latents: &[Vec<f32>], calls: usi
     let mut times = Vec::new();
     let settings = Settings { stride: 1, batch: 1, seed: 0 };
     for t in 0..=last {
-        if targets.contains(&t) {
+        let timed = targets.contains(&t);
+        if timed || warm_up.contains(&t) {
             let start = Instant::now();
             let (plan, _) = store.select(policy, &frusta[t], None);
             match &row.predictor {
@@ -258,7 +266,9 @@ pub fn latency_ms(traj: &Trajectory, row: &Row, latents: &[Vec<f32>], calls: usi
                     std::hint::black_box(reference_image(traj, reference, &plan, t));
                 }
             }
-            times.push(start.elapsed().as_secs_f64() * 1e3);
+            if timed {
+                times.push(start.elapsed().as_secs_f64() * 1e3);
+            }
         }
         store
             .insert(MemoryFrame { id: t as u64, time: t as u64, frustum: frusta[t].clone() })

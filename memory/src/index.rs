@@ -1,43 +1,49 @@
 //! `FrameMemory`: every stored frame, indexed for selection that stays fast
 //! as the history grows.
 //!
-//! Frames arrive one at a time into an `rstar` R-tree over their frustum
-//! bounding boxes (no rebuild). Score-ranked selection then
-//! 1. asks the tree for the frames whose box meets the target's box — every
-//!    other frame has overlap exactly 0 and is never touched;
-//! 2. evaluates those candidates newest first, keeping the best `n` in a heap,
-//!    and stops at the first candidate whose best possible score
-//!    `w_o − w_t·Δt_i` falls below the current n-th best `s*` (every older
-//!    one is worse still); the previous plan's frames are evaluated first so
-//!    that `s*` starts high;
-//!    with the exact estimator it also skips a frame when a bound in pose
-//!    space rules it out: frames are grouped by camera cell (6 blocks) and
-//!    view direction (20° of yaw and of pitch), each group keeps a polytope
-//!    that contains all its frusta, and `Vol(V_t ∩ group)/Vol(V_t)` (one clip
-//!    per group and query) bounds every member's overlap — the bound that
-//!    prunes loops, where every box meets the target's;
+//! Frames are grouped as they arrive (no rebuild) by camera cell (6 blocks)
+//! and view direction (20° of yaw and of pitch). Each group keeps its members
+//! newest first, the box around their frusta, and a polytope that contains
+//! them all; an `rstar` R-tree holds the group boxes. Score-ranked selection
+//! 1. asks the tree for the groups whose box meets the target's box — every
+//!    frame of every other group has overlap exactly 0 and is never touched;
+//! 2. evaluates the previous plan's frames first, so that the `n`-th best
+//!    score `s*` starts high, then visits the groups newest first, keeping
+//!    the best `n` in a heap:
+//!    - it stops at the first group whose newest member's best possible score
+//!      `w_o − w_t·Δt` falls below `s*` (every later group is older still);
+//!    - with the exact estimator it skips a whole group when
+//!      `w_o·b − w_t·Δt` cannot reach `s*`, where `b = Vol(V_t ∩ group)/Vol(V_t)`
+//!      (one clip per group) bounds every member's overlap — the bound that
+//!      prunes loops, where every box meets the target's;
+//!    - inside a group it stops at the first member that the same bound rules
+//!      out (older members are worse still), and skips members whose own box
+//!      misses the target's;
 //! 3. fills the remaining slots with zero-overlap frames, newest first, whose
 //!    score `−w_t·Δt_i` is known without any geometry.
 //!
-//! The result is exactly the brute-force plan of [`crate::policy::select`]
-//! (tested), because only frames that provably cannot enter are skipped.
+//! Rejected groups cost one clip and nothing per member. The result is
+//! exactly the brute-force plan of [`crate::policy::select`] (tested),
+//! because only frames that provably cannot enter are skipped.
 
-use std::collections::{BinaryHeap, HashMap, HashSet};
+use std::collections::{BinaryHeap, HashMap};
 
 use glam::DVec3;
 use rstar::{AABB, RTree, RTreeObject};
 
 use crate::error::InputError;
-use crate::frustum::{Frustum, Plane};
+use crate::frustum::{Aabb, Frustum, Plane};
 use crate::overlap::{Estimator, Polytope};
 use crate::policy::{ContextPlan, MemoryFrame, Policy, Ranking, SelectedFrame, age, rank_order, select_among};
 
-struct Entry {
-    slot: usize,
+/// A group's box in the R-tree.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct GroupBox {
+    group: usize,
     envelope: AABB<[f64; 3]>,
 }
 
-impl RTreeObject for Entry {
+impl RTreeObject for GroupBox {
     type Envelope = AABB<[f64; 3]>;
 
     fn envelope(&self) -> Self::Envelope {
@@ -45,14 +51,15 @@ impl RTreeObject for Entry {
     }
 }
 
-fn envelope(f: &Frustum) -> AABB<[f64; 3]> {
-    AABB::from_corners(f.aabb().min.to_array(), f.aabb().max.to_array())
+fn envelope(b: &Aabb) -> AABB<[f64; 3]> {
+    AABB::from_corners(b.min.to_array(), b.max.to_array())
 }
 
 /// What one selection cost.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct SelectionStats {
-    /// Frames whose box met the target's box.
+    /// Frames in the groups whose box met the target's box: every frame
+    /// the selection looked at.
     pub box_candidates: usize,
     /// Overlap evaluations actually computed.
     pub overlap_evaluations: usize,
@@ -76,23 +83,31 @@ const MIN_GROUP_FOR_BOUND: usize = 3;
 /// farthest corner of any member.
 struct Group {
     planes: Vec<Plane>,
-    members: usize,
+    /// Member slots, oldest to newest by `(time, id)`.
+    slots: Vec<usize>,
+    /// The box around every member's frustum.
+    aabb: Aabb,
 }
 
 impl Group {
     fn new(first: &Frustum) -> Group {
         let axes = [DVec3::X, DVec3::NEG_X, DVec3::Y, DVec3::NEG_Y, DVec3::Z, DVec3::NEG_Z];
         let normals = first.planes().iter().map(|p| p.normal).chain(axes);
-        Group { planes: normals.map(|normal| Plane { normal, offset: f64::NEG_INFINITY }).collect(), members: 0 }
+        Group {
+            planes: normals.map(|normal| Plane { normal, offset: f64::NEG_INFINITY }).collect(),
+            slots: Vec::new(),
+            aabb: *first.aabb(),
+        }
     }
 
-    fn add(&mut self, f: &Frustum) {
-        self.members += 1;
+    /// Widens the polytope and the box to contain `f`.
+    fn cover(&mut self, f: &Frustum) {
         for plane in &mut self.planes {
             for c in f.corners() {
                 plane.offset = plane.offset.max(plane.normal.dot(*c));
             }
         }
+        self.aabb = Aabb { min: self.aabb.min.min(f.aabb().min), max: self.aabb.max.max(f.aabb().max) };
     }
 
     /// An upper bound on the overlap of `target` with any member.
@@ -122,10 +137,9 @@ pub struct FrameMemory {
     /// Slots ordered oldest to newest by `(time, id)`.
     by_recency: Vec<usize>,
     slot_of: HashMap<u64, usize>,
-    tree: RTree<Entry>,
     groups: Vec<Group>,
-    group_of: Vec<usize>,
     group_index: HashMap<[i64; 5], usize>,
+    tree: RTree<GroupBox>,
 }
 
 impl FrameMemory {
@@ -157,18 +171,29 @@ impl FrameMemory {
         }
         let slot = self.frames.len();
         let key = (frame.time, frame.id);
+        let frames = &self.frames;
+        let newer_than = |s: &usize| (frames[*s].time, frames[*s].id) < key;
         // Appending is the common case; a late frame is placed by binary search.
-        let pos = self.by_recency.partition_point(|&s| (self.frames[s].time, self.frames[s].id) < key);
+        let pos = self.by_recency.partition_point(newer_than);
         self.by_recency.insert(pos, slot);
-        self.slot_of.insert(frame.id, slot);
-        self.tree.insert(Entry { slot, envelope: envelope(&frame.frustum) });
         let next_group = self.groups.len();
         let g = *self.group_index.entry(group_key(&frame.frustum)).or_insert(next_group);
         if g == next_group {
             self.groups.push(Group::new(&frame.frustum));
         }
-        self.groups[g].add(&frame.frustum);
-        self.group_of.push(g);
+        let group = &mut self.groups[g];
+        let before = (!group.slots.is_empty()).then(|| GroupBox { group: g, envelope: envelope(&group.aabb) });
+        group.cover(&frame.frustum);
+        let pos = group.slots.partition_point(newer_than);
+        group.slots.insert(pos, slot);
+        let after = GroupBox { group: g, envelope: envelope(&group.aabb) };
+        if before != Some(after) {
+            if let Some(old) = before {
+                self.tree.remove(&old);
+            }
+            self.tree.insert(after);
+        }
+        self.slot_of.insert(frame.id, slot);
         self.frames.push(frame);
         Ok(())
     }
@@ -214,58 +239,66 @@ impl FrameMemory {
         };
 
         // WorldMem's angular test has no range: a box cannot rule a frame out.
-        let mut candidates: Vec<usize> = if matches!(policy.estimator, Estimator::WorldMem(_)) {
-            self.by_recency.clone()
-        } else {
-            self.tree.locate_in_envelope_intersecting(envelope(target)).map(|e| e.slot).collect()
-        };
-        candidates.retain(|&s| Some(s) != pinned);
-        stats.box_candidates = candidates.len();
-        let recency_key = |s: &usize| (self.frames[*s].time, self.frames[*s].id);
-        candidates.sort_unstable_by_key(|s| std::cmp::Reverse(recency_key(s)));
-
+        let ranged = !matches!(policy.estimator, Estimator::WorldMem(_));
+        let meets = |slot: usize| !ranged || self.frames[slot].frustum.aabb().intersects(target.aabb());
         // Group bounds hold for the exact overlap only (an estimate may
         // exceed them), and only rank correctly while the score grows with it.
-        let mut group_bounds: Option<HashMap<usize, f64>> =
-            (matches!(policy.estimator, Estimator::Exact) && policy.weights.overlap > 0.0).then(HashMap::new);
+        let use_bounds = matches!(policy.estimator, Estimator::Exact) && policy.weights.overlap > 0.0;
         let mut best = TopN::new(n);
-        let mut done: HashSet<usize> = HashSet::new();
-        let is_candidate: HashSet<usize> = candidates.iter().copied().collect();
         if n > 0 {
-            // Warm start: last plan's frames that are still candidates.
+            // Warm start: last plan's frames that can still overlap.
+            let mut warm: Vec<usize> = Vec::new();
             for id in previous.iter().flat_map(|p| p.selected().map(|(_, f)| f.id)) {
                 if let Some(&slot) = self.slot_of.get(&id) {
-                    if is_candidate.contains(&slot) && done.insert(slot) {
+                    if Some(slot) != pinned && meets(slot) && !warm.contains(&slot) {
+                        warm.push(slot);
                         stats.overlap_evaluations += 1;
                         best.push(describe(slot, overlap_of(&self.frames[slot])));
                     }
                 }
             }
-            for &slot in &candidates {
-                if done.contains(&slot) {
+            let groups: Vec<usize> = if ranged {
+                self.tree.locate_in_envelope_intersecting(envelope(target.aabb())).map(|b| b.group).collect()
+            } else {
+                (0..self.groups.len()).collect()
+            };
+            // Best first: a queue of each group's next member (newest first)
+            // keyed by the best score that member could reach.
+            let upper = |bound: f64, slot: usize| policy.weights.score(bound, age(self.frames[slot].time, t_now));
+            let mut queue: BinaryHeap<Next> = BinaryHeap::with_capacity(groups.len());
+            for g in groups {
+                let group = &self.groups[g];
+                stats.box_candidates += group.slots.len();
+                let newest = group.slots.len() - 1;
+                if best.cannot_admit(upper(1.0, group.slots[newest])) {
                     continue;
                 }
-                let frame_age = age(self.frames[slot].time, t_now);
-                if best.cannot_admit(policy.weights.score(1.0, frame_age)) {
-                    break; // older candidates have lower bounds still
+                let bound = if use_bounds && group.slots.len() >= MIN_GROUP_FOR_BOUND {
+                    stats.group_bounds += 1;
+                    group.overlap_bound(target)
+                } else {
+                    1.0
+                };
+                queue.push(Next { upper: upper(bound, group.slots[newest]), bound, group: g, index: newest });
+            }
+            while let Some(next) = queue.pop() {
+                if best.cannot_admit(next.upper) {
+                    break; // every member still queued has a lower bound
                 }
-                let g = self.group_of[slot];
-                if let Some(bounds) = group_bounds.as_mut().filter(|_| self.groups[g].members >= MIN_GROUP_FOR_BOUND) {
-                    let bound = *bounds.entry(g).or_insert_with(|| {
-                        stats.group_bounds += 1;
-                        self.groups[g].overlap_bound(target)
-                    });
-                    if best.cannot_admit(policy.weights.score(bound, frame_age)) {
-                        continue;
-                    }
+                let slots = &self.groups[next.group].slots;
+                let slot = slots[next.index];
+                if next.index > 0 {
+                    queue.push(Next { upper: upper(next.bound, slots[next.index - 1]), index: next.index - 1, ..next });
                 }
-                done.insert(slot);
+                if Some(slot) == pinned || !meets(slot) || warm.contains(&slot) {
+                    continue;
+                }
                 stats.overlap_evaluations += 1;
                 best.push(describe(slot, overlap_of(&self.frames[slot])));
             }
             // Zero-overlap frames: scores need no geometry, newest is best.
             for &slot in self.by_recency.iter().rev() {
-                if Some(slot) == pinned || is_candidate.contains(&slot) {
+                if Some(slot) == pinned || meets(slot) {
                     continue;
                 }
                 let entry = describe(slot, 0.0);
@@ -281,6 +314,33 @@ impl FrameMemory {
             ranked.insert(0, describe(slot, overlap_of(&self.frames[slot])));
         }
         (ContextPlan::from_ranked(&policy.packing, &ranked), stats)
+    }
+}
+
+/// A group's next unvisited member and the best score it could reach.
+#[derive(Clone, Copy)]
+struct Next {
+    upper: f64,
+    bound: f64,
+    group: usize,
+    /// Position in the group's `slots` (oldest first).
+    index: usize,
+}
+
+impl PartialEq for Next {
+    fn eq(&self, other: &Self) -> bool {
+        self.cmp(other).is_eq()
+    }
+}
+impl Eq for Next {}
+impl PartialOrd for Next {
+    fn partial_cmp(&self, other: &Self) -> Option<std::cmp::Ordering> {
+        Some(self.cmp(other))
+    }
+}
+impl Ord for Next {
+    fn cmp(&self, other: &Self) -> std::cmp::Ordering {
+        self.upper.total_cmp(&other.upper).then(other.group.cmp(&self.group))
     }
 }
 

@@ -33,21 +33,25 @@ impl Polytope {
 
     /// Keeps the part with `plane.distance(p) <= 0`.
     pub fn clip(&mut self, plane: &Plane, eps: f64) {
+        // Most planes cut nothing: leave without allocating.
+        if self.faces.iter().flatten().all(|&p| plane.distance(p) <= eps) {
+            return;
+        }
         let mut cut_points: Vec<DVec3> = Vec::new();
         let mut face_on_plane = false;
         let mut clipped_faces = Vec::with_capacity(self.faces.len() + 1);
-        let mut any_outside = false;
-        for face in &self.faces {
-            let d: Vec<f64> = face.iter().map(|&p| plane.distance(p)).collect();
+        let mut d: Vec<f64> = Vec::new();
+        for face in std::mem::take(&mut self.faces) {
+            d.clear();
+            d.extend(face.iter().map(|&p| plane.distance(p)));
             if d.iter().all(|&x| x <= eps) {
                 if d.iter().all(|&x| x.abs() <= eps) {
                     face_on_plane = true;
                 }
                 cut_points.extend(face.iter().zip(&d).filter(|(_, x)| x.abs() <= eps).map(|(p, _)| *p));
-                clipped_faces.push(face.clone());
+                clipped_faces.push(face);
                 continue;
             }
-            any_outside = true;
             let mut out = Vec::with_capacity(face.len() + 1);
             for i in 0..face.len() {
                 let j = (i + 1) % face.len();
@@ -68,9 +72,6 @@ impl Polytope {
             if out.len() >= 3 {
                 clipped_faces.push(out);
             }
-        }
-        if !any_outside {
-            return;
         }
         if !face_on_plane {
             if let Some(cap) = cap_polygon(cut_points, plane.normal, eps) {
@@ -118,12 +119,31 @@ fn cap_polygon(mut points: Vec<DVec3>, normal: DVec3, eps: f64) -> Option<Vec<DV
     let centre = unique.iter().sum::<DVec3>() / unique.len() as f64;
     let u = normal.any_orthonormal_vector();
     let v = normal.cross(u);
-    let angle = |p: &DVec3| {
-        let r = *p - centre;
-        r.dot(v).atan2(r.dot(u))
-    };
-    unique.sort_by(|a, b| angle(a).total_cmp(&angle(b)));
-    Some(unique)
+    let mut keyed: Vec<(f64, DVec3)> = unique
+        .into_iter()
+        .map(|p| {
+            let r = p - centre;
+            (pseudo_angle(r.dot(u), r.dot(v)), p)
+        })
+        .collect();
+    keyed.sort_by(|a, b| a.0.total_cmp(&b.0));
+    Some(keyed.into_iter().map(|(_, p)| p).collect())
+}
+
+/// A number in [0, 4) that grows with the angle of `(x, y)` from the x axis,
+/// as `atan2` does, without trigonometry (ordering is all the cap needs).
+fn pseudo_angle(x: f64, y: f64) -> f64 {
+    let r = x.abs() + y.abs();
+    if r == 0.0 {
+        return 0.0;
+    }
+    let (x, y) = (x / r, y / r);
+    match (x >= 0.0, y >= 0.0) {
+        (true, true) => y,
+        (false, true) => 1.0 - x,
+        (false, false) => 2.0 - y,
+        (true, false) => 3.0 + x,
+    }
 }
 
 /// `Vol(candidate ∩ query) / Vol(query)`, exactly (up to f64 rounding).
