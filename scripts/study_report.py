@@ -30,7 +30,7 @@ SHORT = {"baseline": "baseline", "nearest_frame_packing": "NFP", "memory_retriev
 def short(name):
     if name in SHORT:
         return SHORT[name]
-    return name.replace("worldpack, ", "WP ").replace("Monte Carlo ", "MC ")
+    return name.replace("worldpack_keep_last, ", "keep-last ").replace("worldpack, ", "WP ").replace("Monte Carlo ", "MC ")
 
 
 class Canvas:
@@ -124,7 +124,7 @@ def recommend(points):
 
 def chart(study, png, svg):
     pts = study["tradeoff"]
-    W, H, L, R, T, B = 1010, 600, 80, 270, 50, 60
+    W, H, L, R, T, B = 1010, 680, 80, 270, 50, 60
     c = Canvas(W, H)
     lat = [p["latency_ms"] for p in pts]
     x0, x1 = math.floor(math.log10(min(lat))), math.ceil(math.log10(max(lat)))
@@ -145,7 +145,7 @@ def chart(study, png, svg):
         c.text((L - 8, yy + 4), f"{y}", 11, anchor="end")
     c.line((L, H - B), (W - R, H - B), (0, 0, 0))
     c.line((L, T), (L, H - B), (0, 0, 0))
-    c.text((L + (W - L - R) / 2, H - 15), "milliseconds per predicted frame, batch 1, CPU (log scale)", 12, anchor="middle")
+    c.text((L + (W - L - R) / 2, H - 15), "milliseconds per predicted frame, batch 1, one CPU thread (log scale)", 12, anchor="middle")
     c.text((12, T - 20), f"Return-leg PSNR (dB), teacher-forced, {study['targets']} targets over {study['trajectories']} trajectories", 13)
     for name, idx, dash in (("all", front(pts), False), ("learned", [pts.index(p) for p in [learned(pts)[i] for i in front(learned(pts))]], True)):
         line = [px(pts[i]["latency_ms"], pts[i]["psnr"]) for i in idx]
@@ -153,13 +153,29 @@ def chart(study, png, svg):
             c.line(a, (b[0], a[1]), (120, 120, 120), 1, dash)
             c.line((b[0], a[1]), b, (120, 120, 120), 1, dash)
     rec, _ = recommend(pts)
+    # Labels go where they hit no other label or point and stay inside the plot.
+    taken = [(q[0] - 6, q[1] - 6, q[0] + 6, q[1] + 6) for q in (px(p["latency_ms"], p["psnr"]) for p in pts)]
+    offsets = [(8, -6, "start"), (8, 12, "start"), (-8, -6, "end"), (-8, 12, "end"), (8, -18, "start"), (-8, -18, "end"),
+               (8, 24, "start"), (-8, 24, "end"), (8, -30, "start"), (-8, -30, "end")]
     for p in pts:
         q = px(p["latency_ms"], p["psnr"])
         col = GROUP_COLOUR.get(p["group"], (0, 0, 0))
         c.circle(q, 5, col)
         if p is rec:
             c.circle(q, 10, (220, 0, 0), fill=False)
-        c.text((q[0] + 8, q[1] - 6), short(p["name"]), 10, col)
+        label = short(p["name"])
+        width = 7.2 * len(label)
+        for dx, dy, anchor in offsets:
+            left = q[0] + dx if anchor == "start" else q[0] + dx - width
+            box = (left, q[1] + dy - 10, left + width, q[1] + dy + 2)
+            inside = box[0] >= L and box[2] <= W - R and box[1] >= T
+            if inside and not any(box[0] < b[2] and b[0] < box[2] and box[1] < b[3] and b[1] < box[3] for b in taken):
+                break
+        else:
+            dx, dy, anchor = offsets[0]
+            box = (q[0] + dx, q[1] + dy - 10, q[0] + dx + width, q[1] + dy + 2)
+        taken.append(box)
+        c.text((q[0] + dx, q[1] + dy), label, 10, col, anchor)
     y = T + 10
     for g, label in GROUP_LABEL.items():
         if any(p["group"] == g for p in pts):
@@ -189,7 +205,8 @@ def markdown(study, pictures, rel):
              f"Every point is the teacher-forced probe (docs/probe.md) on the same {study['targets']} return-leg targets "
              f"(every {study['stride']}th frame of {study['trajectories']} trajectories), {study['sampler']['steps']} "
              f"{study['sampler']['method']} steps unless the row says otherwise, against the median time of one batch-1 prediction "
-             "(selection, packing, sampling and decoding) on this CPU.", "",
+             "(selection, packing, sampling and decoding; 20 timed after 3 untimed, one intra-op thread, which was both faster and "
+             "steadier than two on this 2-core CPU).", "",
              f"![speed against accuracy]({rel}/tradeoff.png) ([SVG]({rel}/tradeoff.svg))", "",
              "| configuration | what varies | ms/frame | PSNR | SSIM | ΔPSNR vs baseline [95%] | on the front |", "|---|---|---|---|---|---|---|"]
     on_all = set(front(pts))
@@ -200,10 +217,17 @@ def markdown(study, pictures, rel):
         params = f", {p['parameters'] / 1e6:.2f} M" if p.get("parameters") else ""
         lines.append(f"| {short(p['name'])}{params} | {p['group'].replace('_', ' ')} | {p['latency_ms']:.2f} | {p['psnr']:.2f} | {p['ssim']:.3f} | "
                      f"{iv(p['psnr_vs_baseline']) if p['name'] != 'baseline' else '—'} | {mark} |")
-    lines += ["", f"**Recommended default: {short(rec['name'])}** ({rec['latency_ms']:.1f} ms/frame, {rec['psnr']:.2f} dB). "
-              f"It is the fastest learned configuration on the learned front whose interval against the baseline overlaps that of the most "
-              f"accurate learned configuration ({short(best['name'])}, {best['psnr']:.2f} dB, {best['latency_ms']:.1f} ms/frame): the "
-              "measurements cannot tell it from the best, and nothing learned is faster at its accuracy."]
+    why = ("It is the most accurate learned configuration and sits on the learned front: nothing learned is faster at its accuracy, "
+           "and everything learned that is faster is clearly less accurate (the table's intervals)." if rec is best else
+           f"It is the fastest learned configuration on the learned front whose interval against the baseline overlaps that of the most "
+           f"accurate learned configuration ({short(best['name'])}, {best['psnr']:.2f} dB, {best['latency_ms']:.1f} ms/frame): the "
+           "measurements cannot tell it from the best, and nothing learned is faster at its accuracy.")
+    lines += ["", f"**Recommended default: {short(rec['name'])}** ({rec['latency_ms']:.1f} ms/frame, {rec['psnr']:.2f} dB). " + why]
+    if rec.get("steps") and rec["steps"] < study["sampler"]["steps"]:
+        lines += ["", f"A caution on fewer steps: PSNR and SSIM reward the smoother frames a short DDIM schedule makes, so "
+                  f"{rec['steps']} steps can score above {study['sampler']['steps']} while looking blurrier; too few steps "
+                  "(see the 2-step rows) break down entirely. A perceptual metric would weigh sharpness, but none of the "
+                  "feature networks can be downloaded here ([metrics.md](metrics.md))."]
     refs = [pts[i] for i in on_all if pts[i]["group"] == "reference"]
     if refs:
         lines += ["", "On the front of all points the non-learned references " + " and ".join(short(r["name"]) for r in refs) +

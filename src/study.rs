@@ -105,7 +105,12 @@ struct Key {
     steps: Vec<Option<usize>>,
     method: String,
     batch: usize,
+    /// Batch-1 predictions timed per row, on one intra-op thread.
     latency_calls: Option<usize>,
+    #[serde(default)]
+    latency_threads: Option<usize>,
+    /// For poses read from files: a digest of every pose, so new estimates are never mistaken for old ones.
+    poses_digest: Option<u64>,
 }
 
 #[derive(Serialize, Deserialize)]
@@ -183,6 +188,8 @@ pub fn run(o: &Options) -> Result<()> {
     for (name, dir) in &o.extra {
         models.push((name.clone(), load(dir, o.runtime)?));
     }
+    let one_thread = RuntimeOptions { threads: 1, ..o.runtime };
+    let timing: Vec<(String, Model)> = models.iter().map(|(n, m)| Ok((n.clone(), load(m.dir(), one_thread)?))).collect::<Result<_>>()?;
     let model_index = |name: &str| models.iter().position(|m| m.0 == name).expect("loaded above");
     let variant = |name: &str, group| RowSpec {
         name: name.into(),
@@ -202,8 +209,12 @@ pub fn run(o: &Options) -> Result<()> {
         group: Group::Policy,
         what: What::Model { model: model_index("memory_retrieval"), policy: Policy::preset(PolicyKind::WorldMemGreedy), steps: o.steps },
     });
-    for &s in o.sweep_steps.iter().filter(|&&s| s != o.steps) {
-        clean.push(RowSpec { name: format!("worldpack, {s} steps"), group: Group::Steps, what: What::Model { model: wp, policy: wp_policy.clone(), steps: s } });
+    // Step counts for the paper's WorldPack and for the variant that keeps the newest frame.
+    for name in ["worldpack", "worldpack_keep_last"] {
+        for &s in o.sweep_steps.iter().filter(|&&s| s != o.steps) {
+            let what = What::Model { model: model_index(name), policy: variant_policy(name).expect("a variant"), steps: s };
+            clean.push(RowSpec { name: format!("{name}, {s} steps"), group: Group::Steps, what });
+        }
     }
     for samples in [1000, 10_000] {
         let policy = Policy { estimator: Estimator::MonteCarlo(MonteCarlo { samples, seed: 0 }), ..wp_policy.clone() };
@@ -247,6 +258,11 @@ pub fn run(o: &Options) -> Result<()> {
             method: format!("{:?}", o.method).to_lowercase(),
             batch: o.batch,
             latency_calls: c.timed.then_some(o.latency_calls),
+            latency_threads: c.timed.then_some(1),
+            poses_digest: match &c.change {
+                Change::Poses { file } => Some(poses_digest(&trajectories, &o.suite, file)?),
+                _ => None,
+            },
         };
         let path = dir.join(format!("{ci:02}.json"));
         if let Some(saved) = std::fs::read_to_string(&path).ok().and_then(|t| serde_json::from_str::<Saved>(&t).ok()).filter(|s| s.key == key) {
@@ -254,7 +270,7 @@ pub fn run(o: &Options) -> Result<()> {
             results.push((c, saved));
             continue;
         }
-        let saved = run_condition(o, &c, key, &trajectories, &models, &mut latents)?;
+        let saved = run_condition(o, &c, key, &trajectories, &models, &timing, &mut latents)?;
         std::fs::write(&path, serde_json::to_string(&saved)?).with_context(|| format!("writing {}", path.display()))?;
         results.push((c, saved));
     }
@@ -282,30 +298,53 @@ pub fn run(o: &Options) -> Result<()> {
     Ok(())
 }
 
-fn run_condition(
-    o: &Options,
-    c: &Condition,
-    key: Key,
-    trajectories: &[Trajectory],
-    models: &[(String, Model)],
-    latents: &mut HashMap<(usize, usize), Rc<Vec<Vec<f32>>>>,
-) -> Result<Saved> {
-    let start = Instant::now();
-    let rows: Vec<Row> = c
-        .rows
+/// FNV-1a over the bits of every pose in `file` across the suite.
+fn poses_digest(trajectories: &[Trajectory], suite: &Path, file: &str) -> Result<u64> {
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    for t in trajectories {
+        for p in t.believed_poses(suite, file)? {
+            for v in p.matrix_rows().as_flattened() {
+                for b in v.to_bits().to_le_bytes() {
+                    h = (h ^ b as u64).wrapping_mul(0x0100_0000_01b3);
+                }
+            }
+        }
+    }
+    Ok(h)
+}
+
+/// The probe rows of a condition, running on `models`.
+fn build_rows<'m>(c: &Condition, models: &'m [(String, Model)], method: Method) -> Result<Vec<Row<'m>>> {
+    c.rows
         .iter()
         .map(|r| {
             let predictor = match &r.what {
                 What::Model { model, policy, steps } => {
                     let m = &models[*model].1;
-                    Predictor::Model { model: m, policy: policy.clone(), sampler: Sampler::new(&m.manifest().diffusion, *steps, o.method, 0.0)? }
+                    Predictor::Model { model: m, policy: policy.clone(), sampler: Sampler::new(&m.manifest().diffusion, *steps, method, 0.0)? }
                 }
                 What::Copy => Predictor::Copy,
                 What::Reproject => Predictor::Reproject,
             };
             Ok(Row { name: r.name.clone(), predictor })
         })
-        .collect::<Result<_>>()?;
+        .collect()
+}
+
+/// `timing` holds the same models with one intra-op thread: on this 2-core
+/// machine one batch-1 prediction was both faster and far steadier on one
+/// thread (10-step rows: 28–33 ms against 31–57 ms on two).
+fn run_condition(
+    o: &Options,
+    c: &Condition,
+    key: Key,
+    trajectories: &[Trajectory],
+    models: &[(String, Model)],
+    timing: &[(String, Model)],
+    latents: &mut HashMap<(usize, usize), Rc<Vec<Vec<f32>>>>,
+) -> Result<Saved> {
+    let start = Instant::now();
+    let rows = build_rows(c, models, o.method)?;
     let model_of = |m: &Model| models.iter().position(|(_, x)| std::ptr::eq(x, m)).expect("a loaded model");
     let mut latents_of = |ti: usize, traj: &Trajectory, m: &Model| -> Result<Rc<Vec<Vec<f32>>>, ProbeError> {
         // Latents depend on the frames only, never on the poses: shared by every condition.
@@ -321,9 +360,9 @@ fn run_condition(
     let mut latency = vec![None; rows.len()];
     if c.timed {
         let first = transform(&trajectories[0], &c.change, &o.suite, 0)?;
-        for (i, row) in rows.iter().enumerate() {
-            let l = match &row.predictor {
-                Predictor::Model { model, .. } => latents_of(0, &first, model)?,
+        for (i, (row, spec)) in build_rows(c, timing, o.method)?.iter().zip(&c.rows).enumerate() {
+            let l = match &spec.what {
+                What::Model { model, .. } => latents_of(0, &first, &models[*model].1)?,
                 _ => Rc::default(),
             };
             latency[i] = Some(latency_ms(&first, row, &l, o.latency_calls)?);
