@@ -134,8 +134,8 @@ enum Command {
         /// Sampler steps per predicted frame.
         #[arg(long, default_value_t = 10, value_parser = clap::value_parser!(u64).range(1..=1000))]
         steps: u64,
-        /// Also run WorldPack at these step counts (comma-separated).
-        #[arg(long, value_delimiter = ',', default_value = "4,20")]
+        /// Also run WorldPack and WorldPack keep-last at these step counts (comma-separated).
+        #[arg(long, value_delimiter = ',', default_value = "2,4,20")]
         sweep_steps: Vec<usize>,
         /// Sampler: ddim (deterministic) or ancestral.
         #[arg(long, default_value = "ddim", value_parser = parse_method)]

@@ -215,6 +215,7 @@ fn study_pairs_every_condition_and_resumes() {
         names,
         [
             "baseline", "nearest_frame_packing", "memory_retrieval", "worldpack", "worldpack_keep_last", "worldmem_greedy", "worldpack, 1 steps",
+            "worldpack_keep_last, 1 steps",
             "worldpack, Monte Carlo 1000", "worldpack, Monte Carlo 10000", "copy", "reproject"
         ]
     );
