@@ -243,13 +243,25 @@ def markdown(study, pictures, rel):
               "reckoning does. *OpenCV visual odometry*: poses estimated from 224×224 renders of the same trajectories "
               "(ORB, ratio test, `solvePnPRansac` with the previous frame's depth), chained from the true first pose "
               "(`scripts/visual_odometry.py`). Frame 0 is always known.", "",
-              "Quality: ΔPSNR of each row against the same row with true poses, paired per frame, 95% interval over trajectories.", ""]
+              "One-step quality (the teacher-forced probe): ΔPSNR of each row against the same row with true poses, paired per frame, "
+              "95% interval over trajectories.", ""]
     rows = [r["row"] for r in study["noise"][0]["rows"]] if study["noise"] else []
     lines += ["| condition | pose error (blocks / °) | " + " | ".join(short(r) for r in rows) + " |", "|---|---|" + "---|" * len(rows)]
     for c in study["noise"]:
         cells = {r["row"]: r for r in c["rows"]}
         lines.append(f"| {c['condition']} | {c['pose_error_blocks']:.2f} / {c['pose_error_deg']:.1f} | " +
                      " | ".join(iv(cells[r]["psnr_vs_clean"]) for r in rows) + " |")
+    if study.get("rollouts"):
+        clean = next(c for c in study["rollouts"] if c["condition"] == "clean")
+        rrows = [r["row"] for r in clean["rows"]]
+        lines += ["", f"Rollouts under the same noise: the first {study['rollout_frames']} frames of every return leg generated "
+                  "autoregressively (each generated frame joins the memory with its believed pose), so a wrong pose can compound. "
+                  "ΔPSNR against the same row's noise-free rollout, paired per frame, 95% interval over trajectories.", "",
+                  "| condition | frames per row | " + " | ".join(short(r) for r in rrows) + " |", "|---|---|" + "---|" * len(rrows)]
+        for c in study["rollouts"]:
+            cells = {r["row"]: r for r in c["rows"]}
+            vals = [f"{cells[r]['psnr']:.2f} dB" if cells[r]["psnr_vs_clean"] is None else iv(cells[r]["psnr_vs_clean"]) for r in rrows]
+            lines.append(f"| {c['condition']} | {c['frames']} | " + " | ".join(vals) + " |")
     pol = [s["policy"] for s in study["noise"][0]["selection"]] if study["noise"] else []
     lines += ["", "Selection stability: mean Jaccard overlap of the selected frames with the noise-free selection, and mean Spearman "
               "ρ of their ranks (a frame one plan left out counts as tied last there), over the same targets.", "",

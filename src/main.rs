@@ -159,6 +159,9 @@ enum Command {
         /// Only the noise-free condition and the two mildest noise levels.
         #[arg(long)]
         quick: bool,
+        /// Frames generated per return leg in the rollouts under pose noise (0: none).
+        #[arg(long, default_value_t = 40)]
+        rollout_frames: usize,
         #[arg(long, default_value = "cpu", value_parser = parse_provider)]
         provider: model::Provider,
         /// Intra-op threads per model session.
@@ -494,7 +497,7 @@ fn main() -> ExitCode {
             };
             report(probe::run(&options), "probe")
         }
-        Command::Study { suite, models, extra, steps, sweep_steps, method, stride, batch, latency_calls, limit, vo, quick, provider, threads, out } => {
+        Command::Study { suite, models, extra, steps, sweep_steps, method, stride, batch, latency_calls, limit, vo, quick, rollout_frames, provider, threads, out } => {
             if let Some(bad) = sweep_steps.iter().find(|&&n| n == 0 || n > 1000) {
                 eprintln!("worldpack study: --sweep-steps must lie in 1..=1000, got {bad}");
                 return ExitCode::from(2);
@@ -513,6 +516,7 @@ fn main() -> ExitCode {
                 runtime: model::RuntimeOptions { provider, threads },
                 vo,
                 quick,
+                rollout_frames,
                 out,
             };
             report(study::run(&options), "study")

@@ -44,6 +44,8 @@ pub struct Options {
     pub vo: Option<String>,
     /// Only the noise-free condition and the two mildest noise levels (for tests).
     pub quick: bool,
+    /// Generated frames per trajectory in the noisy rollouts (0: none).
+    pub rollout_frames: usize,
     pub out: PathBuf,
 }
 
@@ -275,9 +277,12 @@ pub fn run(o: &Options) -> Result<()> {
         results.push((c, saved));
     }
 
+    let rollouts = if o.rollout_frames > 0 { noisy_rollouts(o, &results, &trajectories, &models, &mut latents)? } else { Vec::new() };
+
     let strata: Vec<Vec<TargetFeatures>> = trajectories.iter().map(|t| features(t, &t.return_frames(o.stride))).collect::<Result<_, _>>()?;
     let summary = summarise(&results, &strata, &models);
     print(&summary);
+    let rollout_summary = summarise_rollouts(&rollouts);
     let path = o.out.join("study.json");
     let json = serde_json::json!({
         "format": "worldpack-study/1",
@@ -291,6 +296,8 @@ pub fn run(o: &Options) -> Result<()> {
         "tradeoff": summary.tradeoff,
         "noise": summary.noise,
         "strata": summary.strata,
+        "rollouts": rollout_summary,
+        "rollout_frames": o.rollout_frames,
         "wall_s": results.iter().map(|(c, s)| (c.name.clone(), s.wall_s)).collect::<Vec<_>>(),
     });
     std::fs::write(&path, serde_json::to_string_pretty(&json)?).with_context(|| format!("writing {}", path.display()))?;
@@ -398,6 +405,123 @@ fn run_condition(
     }
     let n = frames.max(1) as f64;
     Ok(Saved { key, latency_ms: latency, scores, agreement, pose_error: (err_d / n, err_r / n), wall_s: start.elapsed().as_secs_f64() })
+}
+
+/// Rows and conditions of the noisy rollouts: autoregressive generation of
+/// the first frames of each return leg, where a wrong pose compounds.
+const ROLLOUT_ROWS: [&str; 6] = ["baseline", "nearest_frame_packing", "worldpack", "worldpack_keep_last", "copy", "reproject"];
+const ROLLOUT_CONDITIONS: [&str; 4] = ["clean", "translation σ 0.5", "rotation σ 5°", "drift 0.02/step, 0.2°/step"];
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+struct RolloutKey {
+    condition: Key,
+    rows: Vec<String>,
+    frames: usize,
+}
+
+#[derive(Serialize, Deserialize)]
+struct SavedRollout {
+    key: RolloutKey,
+    /// Per row, per trajectory, per generated frame.
+    scores: Vec<Vec<Vec<FrameScore>>>,
+    wall_s: f64,
+}
+
+fn noisy_rollouts(
+    o: &Options,
+    results: &[(Condition, Saved)],
+    trajectories: &[Trajectory],
+    models: &[(String, Model)],
+    latents: &mut HashMap<(usize, usize), Rc<Vec<Vec<f32>>>>,
+) -> Result<Vec<(String, SavedRollout)>> {
+    let dir = o.out.join("rollouts");
+    std::fs::create_dir_all(&dir).with_context(|| format!("--out {}", o.out.display()))?;
+    let mut out = Vec::new();
+    for (ci, (c, saved)) in results.iter().enumerate() {
+        let wanted = ROLLOUT_CONDITIONS.contains(&c.name.as_str()) || matches!(c.change, Change::Poses { .. });
+        if !wanted {
+            continue;
+        }
+        let specs: Vec<&RowSpec> = ROLLOUT_ROWS.iter().filter_map(|n| c.rows.iter().find(|r| r.name == *n)).collect();
+        let key = RolloutKey { condition: saved.key.clone(), rows: specs.iter().map(|r| r.name.clone()).collect(), frames: o.rollout_frames };
+        let path = dir.join(format!("{ci:02}.json"));
+        if let Some(s) = std::fs::read_to_string(&path).ok().and_then(|t| serde_json::from_str::<SavedRollout>(&t).ok()).filter(|s| s.key == key) {
+            eprintln!("study: rollouts under {} reused from {}", c.name, path.display());
+            out.push((c.name.clone(), s));
+            continue;
+        }
+        let start = Instant::now();
+        let seen: Vec<Trajectory> = trajectories.iter().enumerate().map(|(i, t)| transform(t, &c.change, &o.suite, i)).collect::<Result<_>>()?;
+        let sub = Condition { name: c.name.clone(), change: c.change.clone(), rows: specs.iter().map(|r| (*r).clone()).collect(), timed: false };
+        let rows = build_rows(&sub, models, o.method)?;
+        let frames: usize = seen.iter().map(|t| eval::rollout::rollout_frames(t, Some(o.rollout_frames)).len()).sum();
+        let progress = bar(frames * rows.len(), &format!("study rollouts: {}", c.name));
+        let scorer = eval::rollout::Scorer { lpips: None, dreamsim: None, keep_frames: false };
+        let mut scores = Vec::new();
+        for (row, spec) in rows.iter().zip(&sub.rows) {
+            let observed: Vec<Vec<Vec<f32>>> = match &spec.what {
+                What::Model { model, .. } => (0..seen.len())
+                    .map(|ti| {
+                        let k = (ti, *model);
+                        if !latents.contains_key(&k) {
+                            latents.insert(k, Rc::new(encode_all(&models[*model].1, &trajectories[ti])?));
+                        }
+                        Ok(latents[&k].as_ref().clone())
+                    })
+                    .collect::<Result<_, ProbeError>>()?,
+                _ => vec![Vec::new(); seen.len()],
+            };
+            let r = eval::rollout::rollout(&seen, row, &observed, Some(o.rollout_frames), o.batch, 20261121, &scorer, &|n| progress.inc(n as u64))?;
+            scores.push(r.scores);
+        }
+        progress.finish();
+        let s = SavedRollout { key, scores, wall_s: start.elapsed().as_secs_f64() };
+        std::fs::write(&path, serde_json::to_string(&s)?).with_context(|| format!("writing {}", path.display()))?;
+        out.push((c.name.clone(), s));
+    }
+    Ok(out)
+}
+
+#[derive(Serialize)]
+struct RolloutRow {
+    row: String,
+    psnr: f64,
+    /// Against the same row's noise-free rollout, frame by frame.
+    psnr_vs_clean: Option<Interval>,
+}
+
+#[derive(Serialize)]
+struct RolloutCondition {
+    condition: String,
+    frames: usize,
+    wall_s: f64,
+    rows: Vec<RolloutRow>,
+}
+
+fn summarise_rollouts(all: &[(String, SavedRollout)]) -> Vec<RolloutCondition> {
+    let Some((_, clean)) = all.iter().find(|(n, _)| n == "clean") else { return Vec::new() };
+    all.iter()
+        .map(|(name, s)| RolloutCondition {
+            condition: name.clone(),
+            frames: s.scores.first().map_or(0, |r| r.iter().map(Vec::len).sum()),
+            wall_s: s.wall_s,
+            rows: s
+                .key
+                .rows
+                .iter()
+                .enumerate()
+                .map(|(i, row)| {
+                    let flat: Vec<f64> = s.scores[i].iter().flatten().map(|f| f.psnr).collect();
+                    let j = clean.key.rows.iter().position(|r| r == row);
+                    let vs = j.filter(|_| name != "clean").map(|j| {
+                        let diffs: Vec<Vec<f64>> = s.scores[i].iter().zip(&clean.scores[j]).map(|(a, b)| a.iter().zip(b).map(|(x, y)| x.psnr - y.psnr).collect()).collect();
+                        cluster_bootstrap(&diffs, BOOTSTRAP_REPS, 17)
+                    });
+                    RolloutRow { row: row.clone(), psnr: mean_std(&flat).0, psnr_vs_clean: vs }
+                })
+                .collect(),
+        })
+        .collect()
 }
 
 #[derive(Serialize)]

@@ -203,7 +203,7 @@ fn study_pairs_every_condition_and_resumes() {
     let out = temp("study-out");
     let (s, o) = (suite.to_str().unwrap(), out.to_str().unwrap());
     let args = [
-        "study", "--suite", s, "--out", o, "--quick", "--steps", "2", "--sweep-steps", "1", "--stride", "4", "--latency-calls", "1", "--threads", "1", "--vo",
+        "study", "--suite", s, "--out", o, "--quick", "--steps", "2", "--sweep-steps", "1", "--stride", "4", "--latency-calls", "1", "--threads", "1", "--rollout-frames", "6", "--vo",
         "poses-same.npy",
     ];
     ok(&args);
@@ -251,6 +251,15 @@ fn study_pairs_every_condition_and_resumes() {
     let reproject = rotated["rows"].as_array().unwrap().iter().find(|r| r["row"] == "reproject").unwrap();
     assert!(reproject["psnr_vs_clean"]["mean"].as_f64().unwrap() < 0.0, "warping with wrong poses should cost: {reproject}");
 
+    // Rollouts under the same poses are the noise-free rollouts, frame for frame.
+    let rollouts = study["rollouts"].as_array().unwrap();
+    let names: Vec<&str> = rollouts.iter().map(|c| c["condition"].as_str().unwrap()).collect();
+    assert_eq!(names, ["clean", "estimated poses (poses-same.npy)"]);
+    assert!(rollouts[1]["frames"].as_u64().unwrap() > 0);
+    for r in rollouts[1]["rows"].as_array().unwrap() {
+        assert_eq!(r["psnr_vs_clean"]["mean"].as_f64().unwrap(), 0.0, "{}: the true poses changed a rollout", r["row"]);
+    }
+
     let strata = study["strata"].as_array().unwrap();
     assert_eq!(strata.len(), 5);
     assert_eq!(strata[0]["stratum"], "all");
@@ -259,7 +268,7 @@ fn study_pairs_every_condition_and_resumes() {
 
     // A second run reuses every condition and reports the same numbers.
     let log = ok(&args);
-    assert_eq!(log.matches("reused").count(), 4, "{log}");
+    assert_eq!(log.matches("reused").count(), 6, "{log}");
     assert_eq!(json(&out.join("study.json"))["tradeoff"], study["tradeoff"]);
 
     // A poses file that is not there is named before any work.
