@@ -158,7 +158,7 @@ fn noise_conditions(quick: bool, vo: &Option<String>) -> Vec<(String, Change)> {
 
 /// The suite as a condition sees it.
 fn transform(traj: &Trajectory, change: &Change, suite: &Path, index: usize) -> Result<Trajectory> {
-    let mut t = Trajectory { entry: traj.entry.clone(), intrinsics: traj.intrinsics, rgb: traj.rgb.clone(), depth_mm: traj.depth_mm.clone(), poses: traj.poses.clone(), phase: traj.phase.clone(), actions: traj.actions.clone() };
+    let mut t = traj.clone();
     match change {
         Change::Clean => {}
         Change::Far { far } => t.intrinsics = traj.intrinsics.with_range(traj.intrinsics.near, *far).context("far")?,

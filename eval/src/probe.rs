@@ -234,8 +234,8 @@ pub fn probe_trajectory(
 }
 
 /// Untimed predictions before the timed ones: a model's first batch-1 calls
-/// are slower (ONNX Runtime sizes its buffers), and measured rows that ran a
-/// model first came out 10–20 ms slower than later rows on the same model.
+/// can be slower: with two intra-op threads, rows that ran a model first
+/// came out 9–21 ms slower than later rows on the same model and steps.
 const WARM_UP_CALLS: usize = 3;
 
 /// Median wall time (ms) of one prediction, batch 1, selection through

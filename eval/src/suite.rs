@@ -50,6 +50,7 @@ pub fn load(suite: &Path, limit: Option<usize>) -> Result<Vec<Trajectory>, Suite
 }
 
 /// One trajectory, every frame in memory.
+#[derive(Clone)]
 pub struct Trajectory {
     pub entry: Entry,
     pub intrinsics: Intrinsics,
