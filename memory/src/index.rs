@@ -76,38 +76,29 @@ const GROUP_ANGLE_DEG: f64 = 20.0;
 const BOUND_MARGIN: f64 = 1e-6;
 /// Smaller groups are cheaper to evaluate member by member than to bound.
 const MIN_GROUP_FOR_BOUND: usize = 3;
+/// A coarse group spans this many fine cells and angle bins along each axis.
+const COARSE_FACTOR: i64 = 3;
 
-/// Frames with nearby cameras looking in similar directions, and a polytope
-/// containing all their frusta: half-spaces with the first member's six
-/// plane normals and the six axis directions, each pushed out to the
-/// farthest corner of any member.
-struct Group {
+/// A polytope containing every frustum added to it: half-spaces with the
+/// first frustum's six plane normals and the six axis directions, each
+/// pushed out to the farthest corner of any member.
+struct Hull {
     planes: Vec<Plane>,
-    /// Member slots, oldest to newest by `(time, id)`.
-    slots: Vec<usize>,
-    /// The box around every member's frustum.
-    aabb: Aabb,
 }
 
-impl Group {
-    fn new(first: &Frustum) -> Group {
+impl Hull {
+    fn new(first: &Frustum) -> Hull {
         let axes = [DVec3::X, DVec3::NEG_X, DVec3::Y, DVec3::NEG_Y, DVec3::Z, DVec3::NEG_Z];
         let normals = first.planes().iter().map(|p| p.normal).chain(axes);
-        Group {
-            planes: normals.map(|normal| Plane { normal, offset: f64::NEG_INFINITY }).collect(),
-            slots: Vec::new(),
-            aabb: *first.aabb(),
-        }
+        Hull { planes: normals.map(|normal| Plane { normal, offset: f64::NEG_INFINITY }).collect() }
     }
 
-    /// Widens the polytope and the box to contain `f`.
     fn cover(&mut self, f: &Frustum) {
         for plane in &mut self.planes {
             for c in f.corners() {
                 plane.offset = plane.offset.max(plane.normal.dot(*c));
             }
         }
-        self.aabb = Aabb { min: self.aabb.min.min(f.aabb().min), max: self.aabb.max.max(f.aabb().max) };
     }
 
     /// An upper bound on the overlap of `target` with any member.
@@ -120,6 +111,25 @@ impl Group {
             }
         }
         (poly.volume() / target.volume()).clamp(0.0, 1.0) + BOUND_MARGIN
+    }
+}
+
+/// Frames with nearby cameras looking in similar directions.
+struct Group {
+    hull: Hull,
+    /// Member slots, oldest to newest by `(time, id)`.
+    slots: Vec<usize>,
+    /// The box around every member's frustum.
+    aabb: Aabb,
+    /// The coarse group (3× the cell and the angle bins) that holds this one.
+    coarse: usize,
+}
+
+impl Group {
+    /// Widens the hull and the box to contain `f`.
+    fn cover(&mut self, f: &Frustum) {
+        self.hull.cover(f);
+        self.aabb = Aabb { min: self.aabb.min.min(f.aabb().min), max: self.aabb.max.max(f.aabb().max) };
     }
 }
 
@@ -139,6 +149,9 @@ pub struct FrameMemory {
     slot_of: HashMap<u64, usize>,
     groups: Vec<Group>,
     group_index: HashMap<[i64; 5], usize>,
+    /// Hulls of the coarse groups, whose bound can reject many groups with one clip.
+    coarse: Vec<Hull>,
+    coarse_index: HashMap<[i64; 5], usize>,
     tree: RTree<GroupBox>,
 }
 
@@ -176,10 +189,17 @@ impl FrameMemory {
         // Appending is the common case; a late frame is placed by binary search.
         let pos = self.by_recency.partition_point(newer_than);
         self.by_recency.insert(pos, slot);
+        let fine_key = group_key(&frame.frustum);
+        let next_coarse = self.coarse.len();
+        let c = *self.coarse_index.entry(fine_key.map(|k| k.div_euclid(COARSE_FACTOR))).or_insert(next_coarse);
+        if c == next_coarse {
+            self.coarse.push(Hull::new(&frame.frustum));
+        }
+        self.coarse[c].cover(&frame.frustum);
         let next_group = self.groups.len();
-        let g = *self.group_index.entry(group_key(&frame.frustum)).or_insert(next_group);
+        let g = *self.group_index.entry(fine_key).or_insert(next_group);
         if g == next_group {
-            self.groups.push(Group::new(&frame.frustum));
+            self.groups.push(Group { hull: Hull::new(&frame.frustum), slots: Vec::new(), aabb: *frame.frustum.aabb(), coarse: c });
         }
         let group = &mut self.groups[g];
         let before = (!group.slots.is_empty()).then(|| GroupBox { group: g, envelope: envelope(&group.aabb) });
@@ -266,6 +286,7 @@ impl FrameMemory {
             // keyed by the best score that member could reach.
             let upper = |bound: f64, slot: usize| policy.weights.score(bound, age(self.frames[slot].time, t_now));
             let mut queue: BinaryHeap<Next> = BinaryHeap::with_capacity(groups.len());
+            let mut coarse_bounds = vec![f64::NAN; self.coarse.len()];
             for g in groups {
                 let group = &self.groups[g];
                 stats.box_candidates += group.slots.len();
@@ -273,9 +294,21 @@ impl FrameMemory {
                 if best.cannot_admit(upper(1.0, group.slots[newest])) {
                     continue;
                 }
-                let bound = if use_bounds && group.slots.len() >= MIN_GROUP_FOR_BOUND {
-                    stats.group_bounds += 1;
-                    group.overlap_bound(target)
+                let bound = if use_bounds {
+                    let coarse = &mut coarse_bounds[group.coarse];
+                    if coarse.is_nan() {
+                        stats.group_bounds += 1;
+                        *coarse = self.coarse[group.coarse].overlap_bound(target);
+                    }
+                    if best.cannot_admit(upper(*coarse, group.slots[newest])) {
+                        continue;
+                    }
+                    if group.slots.len() >= MIN_GROUP_FOR_BOUND {
+                        stats.group_bounds += 1;
+                        group.hull.overlap_bound(target).min(*coarse)
+                    } else {
+                        *coarse
+                    }
                 } else {
                     1.0
                 };
