@@ -192,3 +192,51 @@ pub fn features(traj: &Trajectory, targets: &[usize]) -> Result<Vec<TargetFeatur
     }
     Ok(out)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::suite::Entry;
+    use glam::DMat3;
+    use memory::{Intrinsics, Pose};
+
+    /// Frames 0–1 face a wall 5 blocks ahead (+z), frames 2–5 face the other
+    /// way into open sky, frame 6 (the return) faces the wall again from the
+    /// same spot. `near_wall_in_1` puts something 2 blocks ahead in frame 1.
+    fn turn_away_and_back(near_wall_in_1: bool) -> Trajectory {
+        let k = Intrinsics::from_fov(60.0, None, 16, 16).unwrap().with_range(0.1, 30.0).unwrap();
+        let n = 16 * 16;
+        let (ahead, behind) = (Pose::from_position(glam::DVec3::ZERO), Pose::new(DMat3::from_rotation_y(std::f64::consts::PI), glam::DVec3::ZERO).unwrap());
+        let poses = vec![ahead, ahead, behind, behind, behind, behind, ahead];
+        let mut depth_mm = Vec::new();
+        for (t, p) in poses.iter().enumerate() {
+            let d = if p.forward().z > 0.0 { if near_wall_in_1 && t == 1 { 2000 } else { 5000 } } else { 0 };
+            depth_mm.extend(std::iter::repeat_n(d as u16, n));
+        }
+        let entry = Entry { dir: "turn".into(), task: "aba".into(), range: 5, frames: 7, returning_point: 6 };
+        Trajectory { entry, intrinsics: k, rgb: vec![0; 7 * n * 3], depth_mm, poses, phase: vec![0, 0, 0, 0, 0, 0, RETURN_PHASE], actions: vec![[0.0; 7]; 7] }
+    }
+
+    #[test]
+    fn a_view_only_old_frames_show_is_memory_dependent() {
+        let f = features(&turn_away_and_back(false), &[6]).unwrap()[0];
+        assert_eq!(f.recent_visible, 0.0, "the 4 newest frames face away");
+        assert_eq!(f.memory_only, 1.0);
+        assert_eq!(f.memory_age, Some(5), "frame 1 shows all of it and is the newest that does");
+        assert_eq!(f.occluded, Some(0.0));
+        assert_eq!(f.revisit_angle_deg, Some(0.0));
+        assert!(Stratum::MemoryDependent.contains(&f) && !Stratum::LongHorizon.contains(&f) && !Stratum::OppositeRevisit.contains(&f));
+    }
+
+    #[test]
+    fn a_nearer_surface_in_the_remembered_frame_hides_the_view() {
+        let f = features(&turn_away_and_back(true), &[6]).unwrap()[0];
+        // Frame 1 (the best-overlap frame: same pose as the target, newest) saw
+        // something at 2 blocks where the target sees the wall at 5: all hidden.
+        assert_eq!(f.occluded, Some(1.0));
+        assert!(Stratum::Occluded.contains(&f));
+        // Only frame 0 still shows the wall.
+        assert_eq!(f.memory_age, Some(6));
+        assert_eq!(f.memory_only, 1.0);
+    }
+}
