@@ -204,13 +204,14 @@ pub fn run(o: &Options) -> Result<()> {
     let mut variants: Vec<RowSpec> = VARIANTS[..4].iter().map(|n| variant(n, Group::Policy)).collect();
     variants.push(variant("worldpack_keep_last", Group::KeepLast));
 
-    // The noise-free condition carries every speed/accuracy point.
-    let mut clean = variants.clone();
-    clean.push(RowSpec {
+    // WorldMem's greedy coverage runs with the memory-retrieval weights (both fill 4 full-rate slots).
+    variants.push(RowSpec {
         name: "worldmem_greedy".into(),
         group: Group::Policy,
         what: What::Model { model: model_index("memory_retrieval"), policy: Policy::preset(PolicyKind::WorldMemGreedy), steps: o.steps },
     });
+    // The noise-free condition carries every speed/accuracy point.
+    let mut clean = variants.clone();
     // Step counts for the paper's WorldPack and for the variant that keeps the newest frame.
     for name in ["worldpack", "worldpack_keep_last"] {
         for &s in o.sweep_steps.iter().filter(|&&s| s != o.steps) {
@@ -409,7 +410,8 @@ fn run_condition(
 
 /// Rows and conditions of the noisy rollouts: autoregressive generation of
 /// the first frames of each return leg, where a wrong pose compounds.
-const ROLLOUT_ROWS: [&str; 6] = ["baseline", "nearest_frame_packing", "worldpack", "worldpack_keep_last", "copy", "reproject"];
+const ROLLOUT_ROWS: [&str; 8] =
+    ["baseline", "nearest_frame_packing", "memory_retrieval", "worldpack", "worldpack_keep_last", "worldmem_greedy", "copy", "reproject"];
 const ROLLOUT_CONDITIONS: [&str; 4] = ["clean", "translation σ 0.5", "rotation σ 5°", "drift 0.02/step, 0.2°/step"];
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
