@@ -1,13 +1,15 @@
 //! `worldpack study`: speed against accuracy, stability under pose noise,
 //! and the places where methods fail (docs/results.md).
 //!
-//! Every number is the teacher-forced return-leg probe of `eval::probe`
+//! Most numbers are the teacher-forced return-leg probe of `eval::probe`
 //! (docs/probe.md) run under a *condition*: the suite as it is, with another
 //! frustum `far`, or with believed poses that differ from the true ones
 //! (Gaussian noise, drifting odometry, or poses estimated by OpenCV visual
 //! odometry). Targets and sampler noise are the same in every condition, so
-//! all differences pair frame by frame. Each condition is saved under
-//! `OUT/conditions/` and reused while its settings match.
+//! all differences pair frame by frame. Under some of the noise conditions
+//! it also runs short autoregressive rollouts (`eval::rollout`), paired the
+//! same way. Each condition is saved under `OUT/conditions/` (rollouts under
+//! `OUT/rollouts/`) and reused while its settings match.
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
