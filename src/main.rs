@@ -93,8 +93,8 @@ enum Command {
         #[arg(long, default_value_t = 10, value_parser = clap::value_parser!(u64).range(1..=1000))]
         steps: u64,
         /// Also run the WorldPack variant at these step counts (comma-separated).
-        #[arg(long, value_delimiter = ',')]
-        sweep_steps: Vec<usize>,
+        #[arg(long, value_delimiter = ',', value_parser = clap::value_parser!(u64).range(1..=1000))]
+        sweep_steps: Vec<u64>,
         /// Sampler: ddim (deterministic) or ancestral.
         #[arg(long, default_value = "ddim", value_parser = parse_method)]
         method: model::Method,
@@ -135,8 +135,8 @@ enum Command {
         #[arg(long, default_value_t = 10, value_parser = clap::value_parser!(u64).range(1..=1000))]
         steps: u64,
         /// Also run WorldPack and WorldPack keep-last at these step counts (comma-separated).
-        #[arg(long, value_delimiter = ',', default_value = "2,4,20")]
-        sweep_steps: Vec<usize>,
+        #[arg(long, value_delimiter = ',', value_parser = clap::value_parser!(u64).range(1..=1000), default_value = "2,4,20")]
+        sweep_steps: Vec<u64>,
         /// Sampler: ddim (deterministic) or ancestral.
         #[arg(long, default_value = "ddim", value_parser = parse_method)]
         method: model::Method,
@@ -477,16 +477,12 @@ fn main() -> ExitCode {
             report(serve(config), "serve")
         }
         Command::Probe { suite, models, extra, steps, sweep_steps, method, stride, batch, latency_calls, limit, provider, threads, out } => {
-            if let Some(bad) = sweep_steps.iter().find(|&&n| n == 0 || n > 1000) {
-                eprintln!("worldpack probe: --sweep-steps must lie in 1..=1000, got {bad}");
-                return ExitCode::from(2);
-            }
             let options = probe::Options {
                 suite,
                 models,
                 extra,
                 steps: steps as usize,
-                sweep_steps,
+                sweep_steps: sweep_steps.into_iter().map(|n| n as usize).collect(),
                 method,
                 stride: stride as usize,
                 batch: batch as usize,
@@ -498,16 +494,12 @@ fn main() -> ExitCode {
             report(probe::run(&options), "probe")
         }
         Command::Study { suite, models, extra, steps, sweep_steps, method, stride, batch, latency_calls, limit, vo, quick, rollout_frames, provider, threads, out } => {
-            if let Some(bad) = sweep_steps.iter().find(|&&n| n == 0 || n > 1000) {
-                eprintln!("worldpack study: --sweep-steps must lie in 1..=1000, got {bad}");
-                return ExitCode::from(2);
-            }
             let options = study::Options {
                 suite,
                 models,
                 extra,
                 steps: steps as usize,
-                sweep_steps,
+                sweep_steps: sweep_steps.into_iter().map(|n| n as usize).collect(),
                 method,
                 stride: stride as usize,
                 batch: batch as usize,

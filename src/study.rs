@@ -341,6 +341,23 @@ fn build_rows<'m>(c: &Condition, models: &'m [(String, Model)], method: Method) 
         .collect()
 }
 
+/// Trajectory `ti`'s latents under model `mi`, encoded once. Latents depend
+/// on the frames only, never on the poses, so every condition shares them.
+fn cached_latents(
+    cache: &mut HashMap<(usize, usize), Rc<Vec<Vec<f32>>>>,
+    ti: usize,
+    traj: &Trajectory,
+    models: &[(String, Model)],
+    mi: usize,
+) -> Result<Rc<Vec<Vec<f32>>>, ProbeError> {
+    if let Some(l) = cache.get(&(ti, mi)) {
+        return Ok(l.clone());
+    }
+    let l = Rc::new(encode_all(&models[mi].1, traj)?);
+    cache.insert((ti, mi), l.clone());
+    Ok(l)
+}
+
 /// `timing` holds the same models with one intra-op thread: on this 2-core
 /// machine one batch-1 prediction was both faster and far steadier on one
 /// thread (10-step rows: 28–33 ms against 31–57 ms on two).
@@ -356,16 +373,7 @@ fn run_condition(
     let start = Instant::now();
     let rows = build_rows(c, models, o.method)?;
     let model_of = |m: &Model| models.iter().position(|(_, x)| std::ptr::eq(x, m)).expect("a loaded model");
-    let mut latents_of = |ti: usize, traj: &Trajectory, m: &Model| -> Result<Rc<Vec<Vec<f32>>>, ProbeError> {
-        // Latents depend on the frames only, never on the poses: shared by every condition.
-        let k = (ti, model_of(m));
-        if let Some(l) = latents.get(&k) {
-            return Ok(l.clone());
-        }
-        let l = Rc::new(encode_all(m, traj)?);
-        latents.insert(k, l.clone());
-        Ok(l)
-    };
+    let mut latents_of = |ti: usize, traj: &Trajectory, m: &Model| cached_latents(latents, ti, traj, models, model_of(m));
 
     let mut latency = vec![None; rows.len()];
     if c.timed {
@@ -465,13 +473,7 @@ fn noisy_rollouts(
         for (row, spec) in rows.iter().zip(&sub.rows) {
             let observed: Vec<Vec<Vec<f32>>> = match &spec.what {
                 What::Model { model, .. } => (0..seen.len())
-                    .map(|ti| {
-                        let k = (ti, *model);
-                        if !latents.contains_key(&k) {
-                            latents.insert(k, Rc::new(encode_all(&models[*model].1, &trajectories[ti])?));
-                        }
-                        Ok(latents[&k].as_ref().clone())
-                    })
+                    .map(|ti| Ok(cached_latents(latents, ti, &trajectories[ti], models, *model)?.as_ref().clone()))
                     .collect::<Result<_, ProbeError>>()?,
                 _ => vec![Vec::new(); seen.len()],
             };
