@@ -86,7 +86,7 @@ enum Command {
         /// A folder of variant model folders: baseline/ (required), nearest_frame_packing/, memory_retrieval/, worldpack/.
         #[arg(long, default_value = "fixtures/variants")]
         models: PathBuf,
-        /// More WorldPack-policy models to compare, as NAME=DIR (e.g. other sizes).
+        /// More models to compare, as NAME=DIR (e.g. other sizes), each with the policy its manifest says it was trained on (WorldPack when it does not say).
         #[arg(long = "extra", value_parser = parse_named_path)]
         extra: Vec<(String, PathBuf)>,
         /// Sampler steps per predicted frame.
@@ -128,7 +128,7 @@ enum Command {
         /// The variant model folders (all five: baseline, nearest_frame_packing, memory_retrieval, worldpack, worldpack_keep_last).
         #[arg(long, default_value = "fixtures/variants")]
         models: PathBuf,
-        /// More WorldPack-policy models (other sizes), as NAME=DIR.
+        /// More models to compare, as NAME=DIR (e.g. other sizes), each with the policy its manifest says it was trained on (WorldPack when it does not say).
         #[arg(long = "extra", value_parser = parse_named_path)]
         extra: Vec<(String, PathBuf)>,
         /// Sampler steps per predicted frame.
@@ -232,6 +232,9 @@ enum Command {
         /// Always put the most recent frame in the first slot.
         #[arg(long)]
         keep_last: bool,
+        /// Also write memory-need.npy per trajectory: the share of each frame's view that only frames older than the 4 newest show (for `train --memory-focus`).
+        #[arg(long)]
+        memory_need: bool,
     },
     /// Answer geometry requests: JSON on stdin (one object or an array), JSON on stdout.
     ///
@@ -533,7 +536,7 @@ fn main() -> ExitCode {
             report(eval::run(&options), "eval")
         }
         Command::Compare { a, b } => report(eval::compare(&a, &b), "compare"),
-        Command::Plan { data, policies, keep_last } => report(plan::run(&data, &policies, keep_last), "plan"),
+        Command::Plan { data, policies, keep_last, memory_need } => report(plan::run(&data, &policies, keep_last, memory_need), "plan"),
         Command::Geometry { input } => {
             let text = match input {
                 Some(path) => std::fs::read_to_string(&path).map_err(|e| format!("cannot read {}: {e}", path.display())),

@@ -55,7 +55,13 @@ pub fn policy_name(kind: PolicyKind) -> String {
 /// slot order, `-1` for an empty slot) chosen as context for predicting frame
 /// `t` from frames `0..t`, with frame `t`'s pose as the query. Row 0 is all
 /// `-1`. Then `plans.json` at the root describes each policy's slots.
-pub fn run(data: &Path, kinds: &[PolicyKind], keep_last: bool) -> Result<()> {
+///
+/// With `memory_need`, each trajectory also gets `memory-need.npy`: float32
+/// `(T,)`, the share of frame `t`'s view that only frames older than the 4
+/// newest show ([`eval::strata::memory_need`], every [`NEED_STRIDE`]-th pixel
+/// row and column), so training can draw more of the targets where memory
+/// beyond recency helps.
+pub fn run(data: &Path, kinds: &[PolicyKind], keep_last: bool, memory_need: bool) -> Result<()> {
     let index_path = data.join("index.json");
     let text = std::fs::read_to_string(&index_path)
         .with_context(|| format!("--data: no suite at {} (make one with `worldpack sim dataset`)", index_path.display()))?;
@@ -64,6 +70,8 @@ pub fn run(data: &Path, kinds: &[PolicyKind], keep_last: bool) -> Result<()> {
         bail!("--policies: name at least one policy");
     }
     let policies: Vec<Policy> = kinds.iter().map(|&k| Policy { keep_last, ..Policy::preset(k) }).collect();
+    // The need reads depth and every field of the suite index; only load those when asked.
+    let suite_entries = if memory_need { Some(eval::suite::entries(data).context("--data")?) } else { None };
 
     let progress = bar(index.trajectories.len(), "plan");
     let next = AtomicUsize::new(0);
@@ -72,9 +80,12 @@ pub fn run(data: &Path, kinds: &[PolicyKind], keep_last: bool) -> Result<()> {
             .map(|_| {
                 scope.spawn(|| {
                     let mut failed = Vec::new();
-                    while let Some(entry) = index.trajectories.get(next.fetch_add(1, Ordering::Relaxed)) {
+                    loop {
+                        let i = next.fetch_add(1, Ordering::Relaxed);
+                        let Some(entry) = index.trajectories.get(i) else { break };
                         let dir = data.join(&entry.dir);
-                        if let Err(e) = plan_trajectory(&dir, &policies) {
+                        let need = suite_entries.as_ref().map(|all| write_memory_need(data, &all[i]));
+                        if let Err(e) = plan_trajectory(&dir, &policies).and(need.unwrap_or(Ok(()))) {
                             failed.push(e.context(dir.display().to_string()));
                         }
                         progress.set_message(entry.dir.clone());
@@ -115,6 +126,17 @@ pub fn run(data: &Path, kinds: &[PolicyKind], keep_last: bool) -> Result<()> {
     });
     std::fs::write(data.join("plans.json"), serde_json::to_string_pretty(&out)?)?;
     println!("wrote plans for {} trajectories, policies {names:?} -> {}", index.trajectories.len(), data.join("plans.json").display());
+    Ok(())
+}
+
+/// Pixel stride of the surface points [`run`] scores the memory need on
+/// (every 4th row and column: 256 points of a 64×64 frame).
+pub const NEED_STRIDE: usize = 4;
+
+fn write_memory_need(data: &Path, entry: &eval::suite::Entry) -> Result<()> {
+    let traj = eval::suite::Trajectory::load(data, entry)?;
+    let need = eval::strata::memory_need(&traj, NEED_STRIDE)?;
+    world::npy::write(&data.join(&entry.dir).join("memory-need.npy"), &[need.len()], &need)?;
     Ok(())
 }
 

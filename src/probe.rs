@@ -34,6 +34,13 @@ pub fn variant_policy(name: &str) -> Option<Policy> {
         _ => None,
     }
 }
+/// The policy a model was trained with (its manifest's `training.policy`),
+/// or the paper's WorldPack when the manifest does not say or names none
+/// of the variants.
+pub fn trained_policy(model: &Model) -> Policy {
+    model.manifest().training.as_ref().and_then(|t| variant_policy(&t.policy)).unwrap_or_else(|| Policy::preset(PolicyKind::WorldPack))
+}
+
 pub const SELECTION_CONTROL: &str = "worldpack weights, recency contexts";
 pub const KEEP_LAST: &str = "worldpack weights, newest frame kept";
 
@@ -112,7 +119,8 @@ pub fn run(o: &Options) -> Result<()> {
         bail!("--models: {} has no baseline/ model folder; the probe compares every row with it", o.models.display());
     }
     for (name, dir) in &o.extra {
-        models.push((name.clone(), Policy::preset(PolicyKind::WorldPack), load(dir, o.runtime)?));
+        let model = load(dir, o.runtime)?;
+        models.push((name.clone(), trained_policy(&model), model));
     }
     let sampler_for = |m: &Model, steps: usize| Sampler::new(&m.manifest().diffusion, steps, o.method, 0.0);
     let mut rows: Vec<Row> = Vec::new();

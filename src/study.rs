@@ -27,7 +27,7 @@ use memory::{Estimator, Policy, PolicyKind};
 use model::{Method, Model, RuntimeOptions, Sampler};
 use serde::{Deserialize, Serialize};
 
-use crate::probe::{VARIANTS, load, variant_policy};
+use crate::probe::{VARIANTS, load, trained_policy, variant_policy};
 use crate::sim::bar;
 
 pub struct Options {
@@ -226,7 +226,8 @@ pub fn run(o: &Options) -> Result<()> {
         clean.push(RowSpec { name: format!("worldpack, Monte Carlo {samples}"), group: Group::Estimator, what: What::Model { model: wp, policy, steps: o.steps } });
     }
     for (name, _) in &o.extra {
-        clean.push(RowSpec { name: name.clone(), group: Group::Size, what: What::Model { model: model_index(name), policy: wp_policy.clone(), steps: o.steps } });
+        let model = model_index(name);
+        clean.push(RowSpec { name: name.clone(), group: Group::Size, what: What::Model { model, policy: trained_policy(&models[model].1), steps: o.steps } });
     }
     clean.extend(references.clone());
 
@@ -575,6 +576,9 @@ struct StratumRow {
     row: String,
     psnr: f64,
     psnr_vs_baseline: Option<Interval>,
+    /// Against Nearest Frame Packing: the same 22-frame packing chosen by
+    /// recency, so what geometric selection adds (the paper's TP-only control).
+    psnr_vs_recency: Option<Interval>,
 }
 
 #[derive(Serialize)]
@@ -611,6 +615,7 @@ fn summarise(results: &[(Condition, Saved)], strata: &[Vec<TargetFeatures>], mod
     let (clean_c, clean) = &results[0];
     let row_index = |c: &Condition, name: &str| c.rows.iter().position(|r| r.name == name);
     let base = row_index(clean_c, "baseline").expect("the clean condition runs the baseline");
+    let recency = row_index(clean_c, "nearest_frame_packing").expect("the clean condition runs nearest frame packing");
 
     let mut tradeoff: Vec<TradeoffPoint> = Vec::new();
     for (c, s) in results.iter().filter(|(c, _)| c.timed) {
@@ -691,11 +696,13 @@ fn summarise(results: &[(Condition, Saved)], strata: &[Vec<TargetFeatures>], mod
                     .rows
                     .iter()
                     .enumerate()
-                    .filter(|(_, r)| matches!(r.group, Group::Policy | Group::KeepLast | Group::Reference))
+                    .filter(|(_, r)| matches!(r.group, Group::Policy | Group::KeepLast | Group::Size | Group::Reference))
                     .map(|(i, r)| StratumRow {
                         row: r.name.clone(),
                         psnr: mean_std(&column(&clean.scores, i, |f| f.psnr, &keep)).0,
                         psnr_vs_baseline: (i != base && count > 0).then(|| cluster_bootstrap(&paired(&clean.scores, i, &clean.scores, base, &keep), BOOTSTRAP_REPS, 9)),
+                        psnr_vs_recency: (matches!(r.group, Group::Policy | Group::KeepLast) && i != base && i != recency && count > 0)
+                            .then(|| cluster_bootstrap(&paired(&clean.scores, i, &clean.scores, recency, &keep), BOOTSTRAP_REPS, 10)),
                     })
                     .collect(),
             }
@@ -724,11 +731,12 @@ fn print(s: &Summary) {
             println!("  selection {:<20} Jaccard {:.3}  rank ρ {:.3}", a.policy, a.jaccard, a.rank);
         }
     }
-    println!("\nWhere methods fail (noise-free): PSNR and Δ vs the baseline per stratum");
+    println!("\nWhere methods fail (noise-free): PSNR, Δ vs the baseline and Δ vs nearest frame packing per stratum");
     for st in &s.strata {
         println!("{} — {} ({} targets, {} trajectories)", st.stratum, st.description, st.targets, st.trajectories);
         for r in &st.rows {
-            println!("  {:<28} {:>7.2}  {}", r.row, r.psnr, r.psnr_vs_baseline.as_ref().map_or("—".into(), interval));
+            let vs = |i: &Option<Interval>| i.as_ref().map_or("—".into(), interval);
+            println!("  {:<28} {:>7.2}  {:>24}  vs NFP {}", r.row, r.psnr, vs(&r.psnr_vs_baseline), vs(&r.psnr_vs_recency));
         }
     }
 }

@@ -265,6 +265,14 @@ fn study_pairs_every_condition_and_resumes() {
     assert_eq!(strata[0]["stratum"], "all");
     assert_eq!(strata[0]["targets"], study["targets"]);
     assert!(strata.iter().all(|s| s["targets"].as_u64().unwrap() <= study["targets"].as_u64().unwrap()));
+    // Selection policies are also paired with nearest frame packing, the same packing filled by recency.
+    let row = |name: &str| strata[0]["rows"].as_array().unwrap().iter().find(|r| r["row"] == name).unwrap().clone();
+    let (kept, recency) = (row("worldpack_keep_last"), row("nearest_frame_packing"));
+    let gap = kept["psnr_vs_recency"]["mean"].as_f64().unwrap() - (at(&kept, "psnr") - at(&recency, "psnr"));
+    assert!(gap.abs() < 1e-9, "paired mean against NFP is the difference of means: {gap}");
+    for name in ["baseline", "nearest_frame_packing", "copy", "reproject"] {
+        assert!(row(name)["psnr_vs_recency"].is_null(), "{name} is not a selection policy compared with recency");
+    }
 
     // A second run reuses every condition and reports the same numbers.
     let log = ok(&args);

@@ -181,6 +181,22 @@ fn plan_files_are_the_memory_crate_selection() {
         let want: Vec<i32> = plan.slots.iter().map(|s| s.frame.map_or(-1, |f| f.id as i32)).collect();
         assert_eq!(&packed[t * 22..(t + 1) * 22], &want[..], "worldpack row {t}");
     }
+
+    // The memory need: only written when asked, one share per frame, close to
+    // the full-resolution share the probe's strata use.
+    assert!(!traj.join("memory-need.npy").exists());
+    let (code, _, stderr) = worldpack(&["plan", "--data", dir, "--policies", "baseline", "--memory-need"]);
+    assert_eq!(code, 0, "{stderr}");
+    let (shape, need) = world::npy::read::<f32>(&traj.join("memory-need.npy")).unwrap();
+    assert_eq!(shape, [frames.len()]);
+    assert_eq!(need[0], 0.0, "frame 0 has no memory");
+    assert!(need.iter().all(|n| (0.0..=1.0).contains(n)), "shares: {need:?}");
+    let loaded = &eval::suite::load(&out, None).unwrap()[0];
+    let every_5th: Vec<usize> = (1..frames.len()).step_by(5).collect();
+    let full = eval::strata::features(loaded, &every_5th).unwrap();
+    let gap = full.iter().map(|f| (f.memory_only - need[f.t] as f64).abs()).sum::<f64>() / full.len() as f64;
+    assert!(gap < 0.03, "mean gap to the full-resolution share: {gap}");
+    assert!(full.iter().any(|f| f.memory_only >= 0.1), "some frames need memory");
     let _ = std::fs::remove_dir_all(&out);
 }
 

@@ -86,14 +86,16 @@ impl Stratum {
     }
 }
 
-/// The world points of frame `t`'s pixels that have depth.
-fn surface_points(traj: &Trajectory, t: usize) -> Vec<DVec3> {
+/// The world points of frame `t`'s pixels that have depth, on every
+/// `stride`-th row and column.
+fn surface_points(traj: &Trajectory, t: usize, stride: usize) -> Vec<DVec3> {
     let k = &traj.intrinsics;
     let w = k.width as usize;
+    let stride = stride.max(1);
     traj.depth(t)
         .iter()
         .enumerate()
-        .filter(|(_, d)| **d > 0)
+        .filter(|(i, d)| **d > 0 && (i % w) % stride == 0 && (i / w) % stride == 0)
         .map(|(i, &d)| traj.poses[t].camera_to_world(k.unproject(DVec2::new((i % w) as f64, (i / w) as f64), d as f64 * DEPTH_UNIT_M)))
         .collect()
 }
@@ -154,7 +156,7 @@ pub fn features(traj: &Trajectory, targets: &[usize]) -> Result<Vec<TargetFeatur
     for (t, frustum) in frusta.iter().enumerate() {
         if next.peek() == Some(&&t) {
             next.next();
-            let points = surface_points(traj, t);
+            let points = surface_points(traj, t, 1);
             let n = points.len().max(1) as f64;
             let recent = t.saturating_sub(RECENT_FRAMES);
             let mut seen: Vec<bool> = points.iter().map(|&p| (recent..t).any(|i| sight(traj, i, p) == Sight::Visible)).collect();
@@ -174,14 +176,15 @@ pub fn features(traj: &Trajectory, targets: &[usize]) -> Result<Vec<TargetFeatur
             }
             let memory_only = seen.iter().filter(|&&s| s).count() as f64 / n - recent_visible;
             let (plan, _) = store.select(&best, frustum, None);
-            let src = plan.selected().next().map_or(t - 1, |(_, f)| f.id as usize);
+            // Frame 0 has no stored frame to be hidden in.
+            let src = plan.selected().next().map(|(_, f)| f.id as usize).or(t.checked_sub(1));
             let here = traj.poses[t];
             let revisit_angle_deg = explored
                 .iter()
                 .filter(|&&i| i < t && traj.poses[i].position().distance(here.position()) <= REVISIT_RADIUS)
                 .map(|&i| traj.poses[i].forward().angle_between(here.forward()).to_degrees())
                 .reduce(f64::min);
-            out.push(TargetFeatures { t, recent_visible, memory_only, memory_age, occluded: occluded_share(traj, src, &points), revisit_angle_deg });
+            out.push(TargetFeatures { t, recent_visible, memory_only, memory_age, occluded: src.and_then(|s| occluded_share(traj, s, &points)), revisit_angle_deg });
         }
         if next.peek().is_none() {
             break;
@@ -191,6 +194,32 @@ pub fn features(traj: &Trajectory, targets: &[usize]) -> Result<Vec<TargetFeatur
             .expect("frame ids are new and increasing");
     }
     Ok(out)
+}
+
+/// Every frame's share of its view that only frames older than the
+/// [`RECENT_FRAMES`] newest show: [`TargetFeatures::memory_only`] for all
+/// frames of a trajectory (0 for frame 0), from the surface points on every
+/// `stride`-th row and column. Training uses it to find the targets where
+/// memory beyond recency can help (`worldpack plan --memory-need`).
+pub fn memory_need(traj: &Trajectory, stride: usize) -> Result<Vec<f32>, SuiteError> {
+    let frusta = traj.frusta()?;
+    let mut need = vec![0.0f32; traj.len()];
+    for t in 1..traj.len() {
+        let points = surface_points(traj, t, stride);
+        if points.is_empty() {
+            continue;
+        }
+        let recent = t.saturating_sub(RECENT_FRAMES);
+        let older: Vec<usize> = (0..recent).filter(|&i| frusta[i].aabb().intersects(frusta[t].aabb())).collect();
+        let only_older = points
+            .iter()
+            .filter(|&&p| {
+                !(recent..t).any(|i| sight(traj, i, p) == Sight::Visible) && older.iter().any(|&i| sight(traj, i, p) == Sight::Visible)
+            })
+            .count();
+        need[t] = only_older as f32 / points.len() as f32;
+    }
+    Ok(need)
 }
 
 #[cfg(test)]
@@ -238,5 +267,17 @@ mod tests {
         // Only frame 0 still shows the wall.
         assert_eq!(f.memory_age, Some(6));
         assert_eq!(f.memory_only, 1.0);
+    }
+
+    #[test]
+    fn memory_need_matches_the_features_on_every_frame() {
+        for near in [false, true] {
+            let traj = turn_away_and_back(near);
+            let all: Vec<usize> = (0..traj.len()).collect();
+            let want: Vec<f32> = features(&traj, &all).unwrap().iter().map(|f| f.memory_only as f32).collect();
+            assert_eq!(memory_need(&traj, 1).unwrap(), want);
+            // Only the return, facing the wall last seen 5 frames back, needs memory.
+            assert_eq!(memory_need(&traj, 3).unwrap(), vec![0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]);
+        }
     }
 }

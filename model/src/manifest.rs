@@ -21,6 +21,15 @@ pub struct Manifest {
     pub denoiser: DenoiserSpec,
     pub action: ActionSpec,
     pub diffusion: DiffusionSpec,
+    /// How the weights were trained (absent in hand-made manifests).
+    #[serde(default)]
+    pub training: Option<TrainingSpec>,
+}
+
+#[derive(Clone, Debug, Deserialize)]
+pub struct TrainingSpec {
+    /// The plans the weights were trained on (`worldpack`, `worldpack_keep_last`, ...).
+    pub policy: String,
 }
 
 #[derive(Clone, Debug, Deserialize)]

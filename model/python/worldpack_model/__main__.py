@@ -40,6 +40,9 @@ def main() -> None:
     p.add_argument("--ema", type=float, default=0.999)
     p.add_argument("--minutes", type=float)
     p.add_argument("--init-from", type=Path, help="fine-tune from this CDiT checkpoint (its EMA weights)")
+    p.add_argument("--memory-focus", type=float, default=0.0,
+                   help="share of each batch drawn from targets that need memory beyond the 4 newest frames "
+                        "(needs `worldpack plan --memory-need`; 0: uniform)")
 
     p = sub.add_parser("variants", help="the paper's order: the 4-frame baseline from scratch, then nearest frame "
                        "packing, memory retrieval and WorldPack each fine-tuned from it (resumable, one stage at a time)")
@@ -50,6 +53,11 @@ def main() -> None:
     p.add_argument("--lr", type=float, default=3e-4)
     p.add_argument("--ema", type=float, default=0.999)
     p.add_argument("--minutes", type=float, help="wall-time budget for this sitting, shared by the stages")
+    p.add_argument("--memory-focus", type=float, default=0.0,
+                   help="the fine-tunes' share of each batch from targets that need memory (see train)")
+    p.add_argument("--baseline", type=Path,
+                   help="fine-tune from this finished baseline checkpoint instead of training one in --run")
+    p.add_argument("--policies", help="comma-separated fine-tunes (default: nearest_frame_packing,memory_retrieval,worldpack)")
 
     p = sub.add_parser("export", help="write ONNX graphs, manifest.json and references to --out")
     common(p, data=False)
@@ -75,9 +83,10 @@ def main() -> None:
         if not (a.run / "autoencoder.pt").exists():
             train.train_autoencoder(a.data, a.run, 4000, 32, 1e-3, a.device, a.minutes)
         train.encode(a.data, a.run, a.device)  # skips trajectories already cached
-        train.train_cdit(a.data, a.run, a.policy, a.steps, a.batch, a.lr, a.ema, a.device, a.minutes, a.init_from)
+        train.train_cdit(a.data, a.run, a.policy, a.steps, a.batch, a.lr, a.ema, a.device, a.minutes, a.init_from, a.memory_focus)
     elif a.stage == "variants":
-        train.train_variants(a.data, a.run, a.baseline_steps, a.fraction, a.batch, a.lr, a.ema, a.device, a.minutes)
+        train.train_variants(a.data, a.run, a.baseline_steps, a.fraction, a.batch, a.lr, a.ema, a.device, a.minutes,
+                             a.memory_focus, a.baseline, a.policies.split(",") if a.policies else None)
     elif a.stage == "export":
         from . import export
 

@@ -30,6 +30,27 @@ def sincos_2d(dim: int, grid: int) -> np.ndarray:
     return np.concatenate([one_axis(dim // 2, ys), one_axis(dim // 2, xs)], axis=1).astype(np.float32)
 
 
+def sincos_2d_at(dim: int, gy: torch.Tensor, gx: torch.Tensor) -> torch.Tensor:
+    """`sincos_2d` evaluated at real-valued grid positions: (...) -> (..., dim);
+    at integer positions it equals the table's rows."""
+    d = dim // 2
+    omega = 1.0 / 10000 ** (torch.arange(d // 2, dtype=torch.float32, device=gy.device) / (d / 2))
+    ay, ax = gy.unsqueeze(-1) * omega, gx.unsqueeze(-1) * omega
+    return torch.cat([torch.sin(ay), torch.cos(ay), torch.sin(ax), torch.cos(ax)], dim=-1)
+
+
+def token_rays(latent_size: int, kernel: int, focal: float) -> np.ndarray:
+    """Camera-frame directions (x right, y down, z = 1; OpenCV) through the
+    centres of the tokens a `kernel`-wide patchify makes, row-major, (n, 3).
+    `focal` is fx over the image width; the principal point is the centre."""
+    side = -(-latent_size // kernel)
+    lo = np.arange(side) * kernel
+    centre = (lo + np.minimum(lo + kernel, latent_size)) / 2 / latent_size  # fraction of the width
+    xn = (centre - 0.5) / focal
+    ys, xs = np.meshgrid(xn, xn, indexing="ij")
+    return np.stack([xs.ravel(), ys.ravel(), np.ones(side * side)], axis=1).astype(np.float32)
+
+
 def pool_table(table: np.ndarray, grid: int, factor: int) -> np.ndarray:
     """Average-pools a (grid*grid, D) table with a factor x factor kernel,
     replicate-padding the grid first when it does not divide."""
@@ -133,6 +154,15 @@ class CDiT(nn.Module):
         for r in cfg.rates:
             if r != 1:
                 self.register_buffer(f"pos_r{r}", torch.from_numpy(pool_table(base, cfg.grid, side_factor(r))), persistent=False)
+        if cfg.landing_depths:
+            if cfg.focal <= 0:
+                raise ValueError("landing_depths need the camera's focal (fx / width) in the config")
+            for r in cfg.rates:
+                rays = token_rays(cfg.latent_size, p * side_factor(r), cfg.focal)
+                self.register_buffer(f"rays_r{r}", torch.from_numpy(rays), persistent=False)
+            self.register_buffer("landing_depth", torch.tensor(cfg.landing_depths, dtype=torch.float32), persistent=False)
+            # Zero: a fine-tune starts as the model it came from and opens these as they help.
+            self.landing_gate = nn.Parameter(torch.zeros(len(cfg.landing_depths), h))
         self.t_embed = ScalarEmbedder(h)
         self.rel_time_embed = ScalarEmbedder(h, cfg.time_unit)
         self.action_embed = nn.Sequential(nn.Linear(cfg.action_dim, h), nn.SiLU(), nn.Linear(h, h))
@@ -180,6 +210,26 @@ class CDiT(nn.Module):
             proj.weight.copy_(w / (s * s))
             proj.bias.copy_(self.patchify.bias)
 
+    def landing_code(self, rate: int, poses):
+        """(B, S, n, D): for each context token, the target's position code where
+        its ray lands in the target view at each assumed depth, gated; zero where
+        it lands behind the target camera or well outside its image. Without
+        depth the model cannot know where remembered content belongs in the new
+        view; this tells it, for surfaces at those distances."""
+        b, s, _ = poses.shape
+        rt = poses.view(b, s, 3, 4)
+        rays = torch.einsum("bsij,nj->bsni", rt[..., :3], getattr(self, f"rays_r{rate}"))
+        points = rt[:, :, None, None, :, 3] + rays.unsqueeze(3) * self.landing_depth.view(1, 1, 1, -1, 1)
+        z = points[..., 2]
+        ahead = z > 0.05
+        z = torch.where(ahead, z, torch.ones_like(z))
+        g = self.cfg.grid
+        gx = (points[..., 0] / z * self.cfg.focal + 0.5) * g - 0.5
+        gy = (points[..., 1] / z * self.cfg.focal + 0.5) * g - 0.5
+        near_view = ahead & (gx > -1.5) & (gx < g + 0.5) & (gy > -1.5) & (gy < g + 0.5)
+        code = sincos_2d_at(self.cfg.hidden, gy, gx) * near_view.unsqueeze(-1).to(z.dtype)
+        return (code * self.landing_gate).sum(dim=3)
+
     def embed_group(self, rate: int, frames, offsets, poses, mask):
         """One rate's slots -> tokens (B, S*n, D), key positions and mask (B, S*n)."""
         b, s, c, hh, ww = frames.shape
@@ -192,6 +242,8 @@ class CDiT(nn.Module):
         n = x.shape[1]
         x = x + getattr(self, f"pos_r{rate}")
         x = x.reshape(b, s, n, -1) + self.pose_embed(poses * self.pose_scale).unsqueeze(2)
+        if self.cfg.landing_depths:
+            x = x + self.landing_code(rate, poses)
         tokens = x.reshape(b, s * n, -1)
         positions = offsets.unsqueeze(-1).expand(b, s, n).reshape(b, s * n)
         token_mask = mask.unsqueeze(-1).expand(b, s, n).reshape(b, s * n)

@@ -69,6 +69,12 @@ class CDiTConfig:
     pose_translation_scale: float = 10.0
     # Relative time (frames) is divided by this before the sinusoidal embedding.
     time_unit: float = 1.0
+    # Where-it-lands positions: each context token also gets the target's
+    # position code at the point where its ray lands in the target view, were
+    # the surface at each of these depths (blocks). () turns it off (older runs).
+    landing_depths: tuple[float, ...] = ()
+    # The camera's focal length over the image width (fx / W), for those rays.
+    focal: float = 0.0
 
     @property
     def grid(self) -> int:
@@ -94,7 +100,8 @@ class ModelConfig:
     @staticmethod
     def from_json(d: dict) -> "ModelConfig":
         ae = AutoencoderConfig(**{**d["autoencoder"], "widths": tuple(d["autoencoder"]["widths"])})
-        cd = CDiTConfig(**{**d["cdit"], "rates": tuple(d["cdit"]["rates"])})
+        cd = CDiTConfig(**{**d["cdit"], "rates": tuple(d["cdit"]["rates"]),
+                           "landing_depths": tuple(d["cdit"].get("landing_depths", ()))})
         return ModelConfig(ae, cd, DiffusionConfig(**d["diffusion"]))
 
 

@@ -62,11 +62,24 @@ class Batch:
     groups: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]
 
 
-class PlannedLatents:
-    """Encoded latents of a suite plus one policy's plans (`plan-<policy>.npy`)."""
+# A target needs memory when at least this share of its view is shown only by
+# frames older than the 4 newest: the threshold of the probe's memory-dependent
+# stratum (eval::strata), so training and evaluation mean the same thing.
+MEMORY_NEED_THRESHOLD = 0.1
 
-    def __init__(self, root: Path, latent_dir: Path, policy: str, layout: Layout):
+
+class PlannedLatents:
+    """Encoded latents of a suite plus one policy's plans (`plan-<policy>.npy`).
+
+    With `memory_focus` f > 0, a share f of every batch is drawn from the
+    targets that need memory (`memory-need.npy` from `worldpack plan
+    --memory-need`), the rest uniformly as without it."""
+
+    def __init__(self, root: Path, latent_dir: Path, policy: str, layout: Layout, memory_focus: float = 0.0):
+        if not 0.0 <= memory_focus <= 1.0:
+            raise SystemExit(f"--memory-focus: must be in [0, 1], got {memory_focus}")
         self.layout = layout
+        self.memory_focus = memory_focus
         plans = json.loads((root / "plans.json").read_text()) if (root / "plans.json").exists() else None
         if plans is None:
             raise SystemExit(f"--data: no plans.json in {root}; run `worldpack plan --data {root}` first")
@@ -84,13 +97,36 @@ class PlannedLatents:
             self.actions.append(np.load(d / "actions.npy"))
             self.plans.append(np.load(d / entry["file"]))
         self.sizes = np.array([len(p) - 1 for p in self.plans])  # frame 0 has no context
+        self.needy = np.zeros((0, 2), np.int64)
+        if memory_focus > 0:
+            self.needy = self.memory_targets(root)
+
+    def memory_targets(self, root: Path) -> np.ndarray:
+        """(N, 2) rows (trajectory, frame) of every target that needs memory."""
+        rows = []
+        for i, d in enumerate(trajectories(root)):
+            path = d / "memory-need.npy"
+            if not path.exists():
+                raise SystemExit(f"--memory-focus: no {path}; run `worldpack plan --data {root} --memory-need` first")
+            need = np.load(path)
+            if need.shape != (len(self.plans[i]),):
+                raise SystemExit(f"--memory-focus: {path} has shape {need.shape}, the trajectory has {len(self.plans[i])} frames")
+            t = np.flatnonzero(need >= MEMORY_NEED_THRESHOLD)
+            rows.append(np.stack([np.full_like(t, i), t], axis=1))
+        needy = np.concatenate(rows)
+        if len(needy) == 0:
+            raise SystemExit(f"--memory-focus: no frame of {root} needs memory (none reaches {MEMORY_NEED_THRESHOLD})")
+        return needy
 
     def batch(self, rng: np.random.Generator, n: int) -> Batch:
-        traj = rng.choice(len(self.plans), size=n, p=self.sizes / self.sizes.sum())
+        focused = int(round(self.memory_focus * n))
+        traj = rng.choice(len(self.plans), size=n - focused, p=self.sizes / self.sizes.sum())
         rows = []
         for i in traj:
             t = int(rng.integers(1, len(self.plans[i])))
             rows.append((i, t))
+        if focused:
+            rows += [(int(i), int(t)) for i, t in self.needy[rng.integers(len(self.needy), size=focused)]]
         return self.gather(rows)
 
     def gather(self, rows: list[tuple[int, int]]) -> Batch:

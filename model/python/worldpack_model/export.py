@@ -337,6 +337,7 @@ def export(run: Path, policy: str, layout_names: list[str], data: Path, out: Pat
         "training": {
             "data": {"source": "worldpack sim dataset (training world seeds)", "frame_size": [a.image_size, a.image_size]},
             "policy": policy, "steps": ckpt["step"],
+            "init_from": ckpt.get("init_from"), "memory_focus": ckpt.get("memory_focus", 0.0),
             "autoencoder_steps": last("autoencoder").get("step"),
             "final_loss": last(f"cdit-{policy}").get("loss"),
             "samples_per_s": last(f"cdit-{policy}").get("samples_per_s"),

@@ -138,27 +138,38 @@ def to_device(batch: wdata.Batch, dev: torch.device):
 
 
 def train_cdit(data: Path, run: Path, policy: str, steps: int, batch: int, lr: float, ema_decay: float,
-               device: str, minutes: float | None, init_from: Path | None) -> None:
+               device: str, minutes: float | None, init_from: Path | None, memory_focus: float = 0.0) -> None:
     cfg = run_config(run)
     dev = pick_device(device)
     layout = LAYOUTS[policy]
     missing = set(layout.rates) - set(cfg.cdit.rates)
     if missing:
         raise SystemExit(f"--policy {policy}: the model has no projection for rates {sorted(missing)}")
-    source = wdata.PlannedLatents(data, run / "latents", policy, layout)
+    source = wdata.PlannedLatents(data, run / "latents", policy, layout, memory_focus)
+    if memory_focus:
+        print(f"{memory_focus:.0%} of each batch from the {len(source.needy):,} targets that need memory")
     model = CDiT(cfg.cdit).to(dev)
     ema = CDiT(cfg.cdit).to(dev)
-    opt = torch.optim.AdamW(model.parameters(), lr=lr, weight_decay=0.0)
+    # The landing gates start at zero; at the base rate they would open over most of a short fine-tune.
+    gates = [p for n, p in model.named_parameters() if n == "landing_gate"]
+    rest = [p for n, p in model.named_parameters() if n != "landing_gate"]
+    groups = [{"params": rest}] + ([{"params": gates, "lr": 10 * lr}] if gates else [])
+    opt = torch.optim.AdamW(groups, lr=lr, weight_decay=0.0)
     sched = Schedule(cfg.diffusion)
     alpha_bar = torch.tensor(sched.alphas_cumprod, dtype=torch.float32, device=dev)
     ckpt = run / f"cdit-{policy}.pt"
     step = 0
+    origin = str(init_from) if init_from is not None else None
     if ckpt.exists():
         state = torch.load(ckpt, map_location=dev)
+        origin = state.get("init_from", origin)
         model.load_state_dict(state["model"])
         ema.load_state_dict(state["ema"])
         opt.load_state_dict(state["opt"])
         step = state["step"]
+        if state.get("memory_focus", 0.0) != memory_focus:
+            raise SystemExit(f"--memory-focus: {ckpt} was trained with {state.get('memory_focus', 0.0)}, not {memory_focus}; "
+                             "resume with the same value or use another --run")
         print(f"resuming {ckpt.name} at step {step}")
     else:
         if init_from is not None:
@@ -198,9 +209,11 @@ def train_cdit(data: Path, run: Path, policy: str, steps: int, batch: int, lr: f
             log(run, {"stage": f"cdit-{policy}", "step": step, "loss": loss.item(),
                       "samples_per_s": seen / (time.time() - started)})
         if step % 500 == 0:
-            save(ckpt, model=model.state_dict(), ema=ema.state_dict(), opt=opt.state_dict(), step=step, policy=policy)
+            save(ckpt, model=model.state_dict(), ema=ema.state_dict(), opt=opt.state_dict(), step=step, policy=policy,
+                 memory_focus=memory_focus, init_from=origin)
     bar.close()
-    save(ckpt, model=model.state_dict(), ema=ema.state_dict(), opt=opt.state_dict(), step=step, policy=policy)
+    save(ckpt, model=model.state_dict(), ema=ema.state_dict(), opt=opt.state_dict(), step=step, policy=policy,
+         memory_focus=memory_focus, init_from=origin)
     print(f"cdit {policy} at step {step} ({seen / max(time.time() - started, 1e-9):.1f} samples/s this run)")
 
 
@@ -212,28 +225,39 @@ def checkpoint_step(path: Path) -> int:
 
 
 def train_variants(data: Path, run: Path, baseline_steps: int, fraction: float, batch: int, lr: float, ema_decay: float,
-                   device: str, minutes: float | None) -> None:
+                   device: str, minutes: float | None, memory_focus: float = 0.0, baseline: Path | None = None,
+                   policies: list[str] | None = None) -> None:
     """The paper's training order. Each stage resumes its own checkpoint; a
     sitting that runs out of `minutes` stops after checkpointing and the next
     call carries on where it stopped. Fine-tunes start only from a finished
-    baseline, so all three start from the same weights."""
+    baseline, so all of them start from the same weights: this run's own, or
+    `baseline` (another run's finished checkpoint, e.g. to fine-tune with a
+    changed recipe). `memory_focus` applies to the fine-tunes."""
     if not 0 < fraction <= 1:
         raise SystemExit(f"--fraction: must be in (0, 1], got {fraction}")
+    if baseline is not None and not baseline.exists():
+        raise SystemExit(f"--baseline: no checkpoint at {baseline}")
+    unknown = [p for p in policies or [] if p not in LAYOUTS or p == "baseline"]
+    if unknown:
+        raise SystemExit(f"--policies: {unknown} are not fine-tuned variants; choose from {sorted(set(LAYOUTS) - {'baseline'})}")
     deadline = time.time() + minutes * 60 if minutes is not None else math.inf
     left = lambda: None if deadline == math.inf else max(0.0, (deadline - time.time()) / 60)
     if not (run / "autoencoder.pt").exists():
         train_autoencoder(data, run, 4000, 32, 1e-3, device, left())
     encode(data, run, device)
-    base = run / "cdit-baseline.pt"
-    train_cdit(data, run, "baseline", baseline_steps, batch, lr, ema_decay, device, left(), None)
+    base = baseline or run / "cdit-baseline.pt"
+    if baseline is None:
+        train_cdit(data, run, "baseline", baseline_steps, batch, lr, ema_decay, device, left(), None)
     if checkpoint_step(base) < baseline_steps:
         print(f"baseline at step {checkpoint_step(base)} of {baseline_steps}: run again to continue")
         return
     fine_steps = max(1, int(round(fraction * baseline_steps)))
-    for policy in FINE_TUNED:
+    fine_tuned = policies or FINE_TUNED
+    for policy in fine_tuned:
         if left() == 0:
             print("out of time for this sitting: run again to continue")
             return
-        train_cdit(data, run, policy, fine_steps, batch, lr, ema_decay, device, left(), base)
-    done = {p: checkpoint_step(run / f"cdit-{p}.pt") for p in ["baseline", *FINE_TUNED]}
+        train_cdit(data, run, policy, fine_steps, batch, lr, ema_decay, device, left(), base, memory_focus)
+    done = {p: checkpoint_step(run / f"cdit-{p}.pt") for p in fine_tuned}
+    done["baseline"] = checkpoint_step(base)
     print("variants at steps " + ", ".join(f"{k} {v}" for k, v in done.items()))
