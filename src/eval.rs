@@ -17,6 +17,7 @@ use memory::{Policy, PolicyKind};
 use model::{Method, Model, RuntimeOptions, Sampler};
 use serde::{Deserialize, Serialize};
 
+use crate::digest::model_key;
 use crate::plan::policy_name;
 use crate::sim::bar;
 
@@ -135,7 +136,7 @@ pub fn run(o: &Options) -> Result<()> {
     for (row, m) in &rows {
         let key = RowKey {
             row: row.name.clone(),
-            model: m.map(|m| m.dir().display().to_string()),
+            model: m.map(|m| model_key(m.dir())).transpose()?,
             suite: o.suite.display().to_string(),
             trajectories: trajs.iter().map(|t| t.entry.dir.clone()).collect(),
             steps: o.steps,

@@ -5,6 +5,7 @@ mod bench_serve;
 mod bench_store;
 mod bench_step;
 mod demo;
+mod digest;
 mod eval;
 mod geometry;
 mod plan;

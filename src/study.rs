@@ -27,6 +27,7 @@ use memory::{Estimator, Policy, PolicyKind};
 use model::{Method, Model, RuntimeOptions, Sampler};
 use serde::{Deserialize, Serialize};
 
+use crate::digest::{FNV_START, fnv1a, model_key};
 use crate::probe::{VARIANTS, load, trained_policy, variant_policy};
 use crate::sim::bar;
 
@@ -244,6 +245,7 @@ pub fn run(o: &Options) -> Result<()> {
         conditions.push(Condition { name, change, rows, timed: false });
     }
 
+    let model_keys: Vec<String> = models.iter().map(|(_, m)| model_key(m.dir())).collect::<Result<_>>()?;
     let dir = o.out.join("conditions");
     std::fs::create_dir_all(&dir).with_context(|| format!("--out {}", o.out.display()))?;
     let targets: usize = trajectories.iter().map(|t| t.return_frames(o.stride).len()).sum();
@@ -258,7 +260,7 @@ pub fn run(o: &Options) -> Result<()> {
             suite: o.suite.display().to_string(),
             trajectories: trajectories.iter().map(|t| t.entry.dir.clone()).collect(),
             rows: c.rows.iter().map(|r| r.name.clone()).collect(),
-            models: c.rows.iter().map(|r| if let What::Model { model, .. } = r.what { Some(models[model].1.dir().display().to_string()) } else { None }).collect(),
+            models: c.rows.iter().map(|r| if let What::Model { model, .. } = r.what { Some(model_keys[model].clone()) } else { None }).collect(),
             stride: o.stride,
             steps: c.rows.iter().map(|r| if let What::Model { steps, .. } = r.what { Some(steps) } else { None }).collect(),
             method: format!("{:?}", o.method).to_lowercase(),
@@ -311,13 +313,11 @@ pub fn run(o: &Options) -> Result<()> {
 
 /// FNV-1a over the bits of every pose in `file` across the suite.
 fn poses_digest(trajectories: &[Trajectory], suite: &Path, file: &str) -> Result<u64> {
-    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    let mut h = FNV_START;
     for t in trajectories {
         for p in t.believed_poses(suite, file)? {
             for v in p.matrix_rows().as_flattened() {
-                for b in v.to_bits().to_le_bytes() {
-                    h = (h ^ b as u64).wrapping_mul(0x0100_0000_01b3);
-                }
+                h = fnv1a(h, &v.to_bits().to_le_bytes());
             }
         }
     }

@@ -287,3 +287,36 @@ fn study_pairs_every_condition_and_resumes() {
     let _ = std::fs::remove_dir_all(&suite);
     let _ = std::fs::remove_dir_all(&out);
 }
+
+fn copy_dir(from: &Path, to: &Path) {
+    std::fs::create_dir_all(to).unwrap();
+    for entry in std::fs::read_dir(from).unwrap() {
+        let path = entry.unwrap().path();
+        let dest = to.join(path.file_name().unwrap());
+        if path.is_dir() { copy_dir(&path, &dest) } else { std::fs::copy(&path, &dest).map(|_| ()).unwrap() }
+    }
+}
+
+#[test]
+fn a_model_changed_in_place_is_not_mistaken_for_its_saved_rows() {
+    let suite = suite("changed");
+    let (models, out) = (temp("changed-models"), temp("changed-out"));
+    for name in ["baseline", "nearest_frame_packing"] {
+        copy_dir(&root().join("fixtures/variants").join(name), &models.join(name));
+    }
+    let args = [
+        "eval", "--suite", suite.to_str().unwrap(), "--models", models.to_str().unwrap(), "--out", out.to_str().unwrap(), "--policies",
+        "baseline,nearest_frame_packing", "--no-references", "--max-frames", "2", "--steps", "1", "--threads", "1",
+    ];
+    ok(&args);
+    assert_eq!(ok(&args).matches("reusing").count(), 2);
+    // Re-exporting writes new files at the same path; any change to them must rerun that row only.
+    let manifest = models.join("nearest_frame_packing/manifest.json");
+    let text = std::fs::read_to_string(&manifest).unwrap();
+    std::fs::write(&manifest, text + "\n").unwrap();
+    let log = ok(&args);
+    assert_eq!(log.matches("reusing").count(), 1, "{log}");
+    for dir in [suite, models, out] {
+        let _ = std::fs::remove_dir_all(dir);
+    }
+}

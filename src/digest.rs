@@ -1,0 +1,34 @@
+//! Content digests for the keys of saved results: a result is reused only
+//! when what produced it is byte for byte the same, not merely at the same path.
+
+use std::path::Path;
+
+use anyhow::{Context, Result};
+
+/// 64-bit FNV-1a, continuing from `h` (start from [`FNV_START`]).
+pub fn fnv1a(mut h: u64, bytes: &[u8]) -> u64 {
+    for &b in bytes {
+        h = (h ^ b as u64).wrapping_mul(0x0100_0000_01b3);
+    }
+    h
+}
+
+pub const FNV_START: u64 = 0xcbf2_9ce4_8422_2325;
+
+/// A model folder's path and a digest of the files directly in it (manifest,
+/// graphs, weights; not `reference/`), in name order: re-exported weights at
+/// the same path get a new key.
+pub fn model_key(dir: &Path) -> Result<String> {
+    let mut files: Vec<_> = std::fs::read_dir(dir)
+        .with_context(|| format!("reading {}", dir.display()))?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.is_file())
+        .collect();
+    files.sort();
+    let mut h = FNV_START;
+    for f in files {
+        h = fnv1a(h, f.file_name().unwrap_or_default().as_encoded_bytes());
+        h = fnv1a(h, &std::fs::read(&f).with_context(|| format!("reading {}", f.display()))?);
+    }
+    Ok(format!("{} #{h:016x}", dir.display()))
+}
