@@ -2,8 +2,11 @@
 
     # training loss of the four variants, fine-tunes drawn from where the baseline ended
     .venv/bin/python scripts/plot_probe.py loss runs/small/log.jsonl -o docs/probe/training_loss.png
+    # several runs: a stage in a later log replaces the same stage of an earlier one
+    # (here the baseline of runs/small with the fine-tunes of runs/geo)
+    .venv/bin/python scripts/plot_probe.py loss runs/small/log.jsonl runs/geo/log.jsonl -o docs/probe/training_loss.png
     # return-leg PSNR difference to the baseline, with 95% intervals, from `worldpack probe --out`
-    .venv/bin/python scripts/plot_probe.py probe docs/probe/probe.json -o docs/probe/probe.png
+    .venv/bin/python scripts/plot_probe.py probe docs/probe/probe-session4.json -o docs/probe/probe-session4.png
 """
 
 import argparse
@@ -32,13 +35,15 @@ def nice_ticks(lo, hi, n=6):
 
 
 def loss(args):
-    records = [json.loads(line) for line in open(args.input)]
     stages = {}
-    for r in records:
-        if r["stage"].startswith("cdit-"):
-            stages.setdefault(r["stage"][5:], []).append((r["step"], r["loss"]))
+    for path in args.input:
+        here = {}
+        for r in (json.loads(line) for line in open(path)):
+            if r["stage"].startswith("cdit-"):
+                here.setdefault(r["stage"][5:], []).append((r["step"], r["loss"]))
+        stages.update(here)
     if "baseline" not in stages:
-        raise SystemExit(f"{args.input}: no cdit-baseline records")
+        raise SystemExit(f"{' '.join(args.input)}: no cdit-baseline records")
     base_end = max(s for s, _ in stages["baseline"])
     curves = {}
     for name, pts in stages.items():
@@ -111,9 +116,13 @@ def probe(args):
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("what", choices=["loss", "probe"])
-    ap.add_argument("input")
+    ap.add_argument("input", nargs="+", help="loss: one or more log.jsonl files; probe: one probe.json")
     ap.add_argument("-o", "--output", required=True)
     args = ap.parse_args()
+    if args.what == "probe":
+        if len(args.input) != 1:
+            raise SystemExit("probe: give one probe.json")
+        args.input = args.input[0]
     {"loss": loss, "probe": probe}[args.what](args)
 
 

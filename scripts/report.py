@@ -3,7 +3,7 @@ JSON: tables in the paper's layout (rows: methods; columns: ranges; one
 table per task), per-frame PSNR curves along the return leg (PNG, OpenCV),
 the commands, machine and model details.
 
-    .venv/bin/python scripts/report.py runs/eval/results.json --probe docs/probe/probe.json \\
+    .venv/bin/python scripts/report.py runs/eval/results.json --probe docs/probe/probe-session4.json \\
         --command "./scripts/results.sh" -o docs/results.md
 """
 
