@@ -232,8 +232,9 @@ def markdown(study, pictures, rel):
     if refs:
         lines += ["", "On the front of all points the non-learned references " + " and ".join(short(r["name"]) for r in refs) +
                   " sit ahead of every model: at 64×64 with true poses, warping a stored frame with its depth is both faster and "
-                  "closer than anything trained here. The model earns its cost only where the poses or depth are not to be trusted "
-                  "(next section) or where no stored frame shows the view."]
+                  "closer than anything trained here. The model earns its cost where the poses are not to be trusted (next section: "
+                  "under every level of independent pose noise the warp loses more than any model) or where no stored frame shows "
+                  "the view (the memory-dependent stratum below)."]
     lines.append("")
 
     lines += ["## Stability under pose noise", "",
