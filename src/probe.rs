@@ -34,6 +34,7 @@ pub fn variant_policy(name: &str) -> Option<Policy> {
         _ => None,
     }
 }
+
 /// The policy a model was trained with (its manifest's `training.policy`),
 /// or the paper's WorldPack when the manifest does not say or names none
 /// of the variants.
