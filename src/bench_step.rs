@@ -124,7 +124,8 @@ pub fn run(dir: &Path, options: RuntimeOptions, steps: &[usize], calls: usize, j
     let (Some(base), Some(packed)) = (m.manifest().layout("baseline").cloned(), m.manifest().layout("worldpack").cloned()) else {
         bail!("--model: {} needs both a \"baseline\" and a \"worldpack\" layout to compare", dir.display());
     };
-    let (gb, gp) = (m.denoiser("baseline")?, m.denoiser("worldpack")?);
+    let graphs = m.local()?;
+    let (gb, gp) = (graphs.denoiser("baseline")?, graphs.denoiser("worldpack")?);
     let (cb, cp) = (full_context(m.manifest(), &base), full_context(m.manifest(), &packed));
     for _ in 0..3 {
         call(gb, m.manifest(), &cb)?;
@@ -163,7 +164,7 @@ pub fn run(dir: &Path, options: RuntimeOptions, steps: &[usize], calls: usize, j
             let mut ms = Vec::new();
             for rep in 0..3 {
                 let s = Instant::now();
-                let latent = m.sample(layout, &cond, &sampler, rep)?;
+                let latent = m.sample(layout, &cond, &sampler, &[rep])?;
                 m.decode(&latent)?;
                 ms.push(s.elapsed().as_secs_f64() * 1e3);
             }

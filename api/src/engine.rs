@@ -7,15 +7,16 @@ use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
-use memory::{ContextPlan, Intrinsics, Policy, Pose};
-use model::generate::{Conditioning, frame_to_tensor, tensor_to_frame};
-use model::{Model, Sampler, Tensor};
+use memory::{ContextPlan, Intrinsics, Pose};
+use model::generate::frame_to_tensor;
+use model::pack::ContextFrame;
+use model::{Model, Sampler};
 use world::World;
 use world::agent::{Action, PlayerState};
 use world::render::{RenderSettings, render};
 
 use crate::error::ApiError;
-use crate::session::{Session, player_to};
+use crate::session::{GENERATED, OBSERVED, Session, player_to};
 use crate::store::{FrameMeta, FrameRecord, SessionRecord, Store};
 
 pub struct Engine {
@@ -79,7 +80,7 @@ impl Engine {
         let player = PlayerState::at_cell(cell, 0.0);
         let frame = render(&world, &player.camera(), &k, &RenderSettings::default());
         let latent = self.latent_of(&frame.rgb, k.width, k.height, &k, "synthetic")?;
-        let first = FrameRecord { meta: meta(&player.camera(), 0, "observed", None, Some(&player)), latent, png: encode_png(&frame.rgb, k.width, k.height), depth_png16: Vec::new() };
+        let first = FrameRecord { meta: meta(&player.camera(), 0, OBSERVED, None, Some(&player)), latent, png: encode_png(&frame.rgb, k.width, k.height), depth_png16: Vec::new() };
         self.create(SessionRecord { policy, intrinsics: k, world_seed: Some(seed) }, vec![first], Some(world))
     }
 
@@ -107,28 +108,22 @@ impl Engine {
         let frustum = s.frustum(pose)?;
         let (plan, stats) = s.memory.select(&s.policy, &frustum, s.last_plan.as_ref());
         let select_ms = ms(t0);
-        let layout = layout_for(m, &s.policy)?;
-        let spec = m.manifest().layout(&layout).expect("layout_for returns a layout of the manifest");
-        let packed = model::pack::pack(spec, &m.manifest().autoencoder.latent, &plan, time, &pose, |fid| {
-            s.frames.get(fid as usize).map(|f| model::pack::ContextFrame { latent: &f.latent, time: f.time, pose: &f.pose })
-        })?;
-        let action_t = Tensor::new(vec![1, 7], action.to_vector().to_vec());
-        let rel_time = Tensor::new(vec![1], vec![packed.rel_time]);
-        let t1 = Instant::now();
-        let cond = Conditioning { context: &packed.tensors, action: &action_t, rel_time: &rel_time };
-        let latent = m.sample(&layout, &cond, sampler, seed.unwrap_or(time))?;
-        let sample_ms = ms(t1);
+        let action_values = action.to_vector().map(|v| v as f32);
+        let request = model::Request { plan: &plan, target_time: time, target_pose: &pose, action: &action_values, seed: seed.unwrap_or(time) };
+        let frames = &s.frames;
+        let lookup = |_: usize, id: u64| frames.get(id as usize).map(|f| ContextFrame { latent: &f.latent, time: f.time, pose: &f.pose, generated: f.generated });
+        let mut prediction = m.predict(&s.policy.packing, &[request], &lookup, sampler)?;
+        let predicted = prediction.frames.remove(0);
         let t2 = Instant::now();
-        let rgb = tensor_to_frame(&m.decode(&latent)?, 0)?;
         let img = &m.manifest().image;
-        let png = encode_png(&rgb, img.width as u32, img.height as u32);
-        let decode_ms = ms(t2);
+        let png = encode_png(&predicted.rgb, img.width as u32, img.height as u32);
+        let decode_ms = prediction.decode_ms + ms(t2);
         let t3 = Instant::now();
         let index = s.frames.len() as u64;
-        let record = FrameRecord { meta: meta(&pose, time, "generated", Some(action), player.as_ref()), latent: latent.data, png, depth_png16: Vec::new() };
+        let record = FrameRecord { meta: meta(&pose, time, GENERATED, Some(action), player.as_ref()), latent: predicted.latent, png, depth_png16: Vec::new() };
         self.store.put_frame(s.id, index, &record)?;
         let store_ms = ms(t3);
-        s.push(time, pose, record.latent, player)?;
+        s.push(time, pose, record.latent, player, true)?;
         s.last_plan = Some(plan.clone());
         Ok(StepOutcome {
             index,
@@ -136,9 +131,9 @@ impl Engine {
             pose,
             png: record.png,
             plan,
-            layout,
+            layout: prediction.layout,
             exact_evaluations: stats.overlap_evaluations,
-            timings_ms: [select_ms, sample_ms, decode_ms, store_ms],
+            timings_ms: [select_ms, prediction.sample_ms, decode_ms, store_ms],
         })
     }
 
@@ -150,9 +145,9 @@ impl Engine {
         s.frustum(pose)?;
         let time = s.next_time();
         let index = s.frames.len() as u64;
-        let record = FrameRecord { meta: meta(&pose, time, "observed", action, None), latent, png: encode_png(rgb, w, h), depth_png16 };
+        let record = FrameRecord { meta: meta(&pose, time, OBSERVED, action, None), latent, png: encode_png(rgb, w, h), depth_png16 };
         self.store.put_frame(s.id, index, &record)?;
-        s.push(time, pose, record.latent, None)?;
+        s.push(time, pose, record.latent, None, false)?;
         Ok((index, time))
     }
 }
@@ -178,12 +173,4 @@ pub fn encode_png(rgb: &[u8], w: u32, h: u32) -> Vec<u8> {
     enc.set_depth(png::BitDepth::Eight);
     enc.write_header().and_then(|mut w| w.write_image_data(rgb)).expect("encoding a PNG into memory");
     out
-}
-
-/// The denoiser layout whose slots are the policy's packing, tier by tier.
-pub fn layout_for(m: &Model, policy: &Policy) -> Result<String, ApiError> {
-    m.manifest().layout_for_packing(&policy.packing).map(|l| l.name.clone()).ok_or_else(|| {
-        let want: Vec<(u32, usize)> = policy.packing.tiers().iter().map(|t| (t.rate, t.slots)).collect();
-        ApiError::bad("policy", format!("the model has no context layout with slots {want:?} (rate, count); its layouts fit baseline (4x1) and worldpack (2x1, 4x4, 16x16) packings"))
-    })
 }

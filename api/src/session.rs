@@ -15,6 +15,8 @@ pub struct Frame {
     pub time: u64,
     pub latent: Vec<f32>,
     pub player: Option<PlayerState>,
+    /// Made by the model (a step), not observed: the model is told so when it is in context.
+    pub generated: bool,
 }
 
 pub struct Session {
@@ -28,6 +30,10 @@ pub struct Session {
     /// Set by a delete; requests that were queued on the session see it and answer 404.
     pub deleted: bool,
 }
+
+/// A stored frame's `source` when a step made it (else `observed`).
+pub const GENERATED: &str = "generated";
+pub const OBSERVED: &str = "observed";
 
 pub fn policy_of(spec: &serde_json::Value) -> Result<Policy, ApiError> {
     let spec: PolicySpec = serde_path_to_error::deserialize(spec.clone())
@@ -45,7 +51,8 @@ impl Session {
         let policy = policy_of(&record.policy)?;
         let mut s = Session { id, record, policy, memory: FrameMemory::new(), frames: Vec::new(), last_plan: None, world, deleted: false };
         for f in frames {
-            s.push(f.meta.time, pose_of(&f.meta)?, f.latent, f.meta.player.map(player_from))?;
+            let generated = f.meta.source == GENERATED;
+            s.push(f.meta.time, pose_of(&f.meta)?, f.latent, f.meta.player.map(player_from), generated)?;
         }
         Ok(s)
     }
@@ -59,10 +66,10 @@ impl Session {
     }
 
     /// Adds a committed frame to the in-memory index.
-    pub fn push(&mut self, time: u64, pose: Pose, latent: Vec<f32>, player: Option<PlayerState>) -> Result<(), ApiError> {
+    pub fn push(&mut self, time: u64, pose: Pose, latent: Vec<f32>, player: Option<PlayerState>, generated: bool) -> Result<(), ApiError> {
         let frustum = self.frustum(pose)?;
         self.memory.insert(MemoryFrame { id: self.frames.len() as u64, time, frustum })?;
-        self.frames.push(Frame { pose, time, latent, player });
+        self.frames.push(Frame { pose, time, latent, player, generated });
         Ok(())
     }
 

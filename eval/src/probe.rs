@@ -6,9 +6,9 @@
 use std::time::Instant;
 
 use memory::{ContextPlan, Estimator, FrameMemory, MemoryFrame, Packing, Policy, PolicyKind, Ranking, ScoreWeights};
-use model::generate::{Conditioning, frame_to_tensor, tensor_to_frame};
-use model::pack::{ContextFrame, pack, stack};
-use model::{Model, ModelError, Sampler, Tensor};
+use model::generate::frame_to_tensor;
+use model::pack::ContextFrame;
+use model::{Model, ModelError, Request, Sampler, Tensor};
 use serde::Serialize;
 
 use crate::metrics::{psnr, ssim};
@@ -145,7 +145,14 @@ pub fn reference_image(traj: &Trajectory, how: &Predictor, plan: &ContextPlan, t
     }
 }
 
-/// Predicts `targets` of `traj` for one model row, `batch` at a time.
+/// The seed of the noise for target `t`: the same in every row and every
+/// batch, so rows differ only in what they are shown.
+pub fn target_seed(seed: u64, t: usize) -> u64 {
+    seed ^ (t as u64).wrapping_mul(0x9e37_79b9_7f4a_7c15)
+}
+
+/// Predicts `targets` of `traj` for one model row, `batch` at a time; every
+/// earlier frame is observed.
 fn predict_model(
     m: &Model,
     policy: &Policy,
@@ -157,29 +164,17 @@ fn predict_model(
     settings: &Settings,
     mut done: impl FnMut(usize, Vec<u8>),
 ) -> Result<(), ProbeError> {
-    let manifest = m.manifest();
-    let layout = manifest
-        .layout_for_packing(&policy.packing)
-        .ok_or_else(|| ProbeError::Invalid(format!("model {} has no layout for the {:?} packing", m.dir().display(), policy.kind)))?;
-    let frame = |id: u64| latents.get(id as usize).map(|l| ContextFrame { latent: l, time: id, pose: &traj.poses[id as usize] });
-    for (b, chunk) in targets.chunks(settings.batch.max(1)).enumerate() {
-        let at = b * settings.batch.max(1);
-        let packed = chunk
+    let frame = |_: usize, id: u64| latents.get(id as usize).map(|l| ContextFrame { latent: l, time: id, pose: &traj.poses[id as usize], generated: false });
+    let size = settings.batch.max(1);
+    for (chunk, plans) in targets.chunks(size).zip(plans.chunks(size)) {
+        let requests: Vec<Request> = chunk
             .iter()
-            .enumerate()
-            .map(|(j, &t)| pack(layout, &manifest.autoencoder.latent, &plans[at + j], t as u64, &traj.poses[t], frame))
-            .collect::<Result<Vec<_>, _>>()?;
-        let contexts: Vec<&[(String, Tensor)]> = packed.iter().map(|p| p.tensors.as_slice()).collect();
-        let context = stack(&contexts);
-        let action = Tensor::new(vec![chunk.len(), 7], chunk.iter().flat_map(|&t| traj.actions[t]).collect());
-        let rel_time = Tensor::new(vec![chunk.len()], packed.iter().map(|p| p.rel_time).collect());
-        let cond = Conditioning { context: &context, action: &action, rel_time: &rel_time };
-        // The same noise for a target in every row: seeded by trajectory position, not by row.
-        let seed = settings.seed ^ (chunk[0] as u64).wrapping_mul(0x9e37_79b9_7f4a_7c15);
-        let latent = m.sample(&layout.name, &cond, sampler, seed)?;
-        let images = m.decode(&latent)?;
-        for (j, &t) in chunk.iter().enumerate() {
-            done(t, tensor_to_frame(&images, j)?);
+            .zip(plans)
+            .map(|(&t, plan)| Request { plan, target_time: t as u64, target_pose: &traj.poses[t], action: &traj.actions[t], seed: target_seed(settings.seed, t) })
+            .collect();
+        let prediction = m.predict(&policy.packing, &requests, &frame, sampler)?;
+        for (&t, p) in chunk.iter().zip(prediction.frames) {
+            done(t, p.rgb);
         }
     }
     Ok(())

@@ -5,9 +5,8 @@
 //! lockstep so one denoiser call serves a whole batch of them.
 
 use memory::{ContextPlan, FrameMemory, Frustum, MemoryFrame};
-use model::generate::{Conditioning, tensor_to_frame};
-use model::pack::{ContextFrame, pack, stack};
-use model::Tensor;
+use model::pack::ContextFrame;
+use model::Request;
 
 use crate::features::{Embedding, FeatureError, Lpips, VideoFeatures, frechet_distance};
 use crate::metrics::{psnr, ssim};
@@ -74,6 +73,12 @@ pub struct RowOutput {
     pub frames: Vec<Vec<Vec<u8>>>,
 }
 
+/// The noise seed of trajectory `traj`'s frame `t`: the same whatever the
+/// batch, so a rollout does not depend on how trajectories are grouped.
+pub fn frame_seed(seed: u64, traj: usize, t: usize) -> u64 {
+    seed ^ (t as u64).wrapping_mul(0x9e37_79b9_7f4a_7c15) ^ (traj as u64).wrapping_mul(0xd1b5_4a32_d192_ed03)
+}
+
 /// One row's rollouts over `trajs`. `observed_latents[i]` holds trajectory
 /// i's ground-truth latents under the row's model (unused by the
 /// references). Returns every trajectory's per-frame scores, in frame order.
@@ -93,10 +98,7 @@ pub fn rollout(
             Ok(RowOutput { scores, frames })
         }
         Predictor::Model { model, policy, sampler } => {
-            let manifest = model.manifest();
-            let layout = manifest
-                .layout_for_packing(&policy.packing)
-                .ok_or_else(|| ProbeError::Invalid(format!("model {} has no layout for the {:?} packing", model.dir().display(), policy.kind)))?;
+            model.layout_for(&policy.packing)?; // before any work: a policy the model cannot take fails at once
             let mut runs = trajs
                 .iter()
                 .zip(observed_latents)
@@ -116,41 +118,43 @@ pub fn rollout(
                     })
                 })
                 .collect::<Result<Vec<_>, ProbeError>>()?;
-            let mut step = 0u64;
             loop {
                 let active: Vec<usize> = (0..runs.len()).filter(|&i| runs[i].next < runs[i].end).collect();
                 if active.is_empty() {
                     break;
                 }
                 for chunk in active.chunks(batch.max(1)) {
-                    let mut packed = Vec::with_capacity(chunk.len());
+                    let mut plans = Vec::with_capacity(chunk.len());
                     for &i in chunk {
                         let r = &mut runs[i];
-                        let t = r.next;
-                        let (plan, _) = r.store.select(policy, &r.frusta[t], r.previous.as_ref());
-                        let (latents, poses) = (&r.latents, &r.traj.poses);
-                        let frame = |id: u64| latents.get(id as usize).map(|l| ContextFrame { latent: l, time: id, pose: &poses[id as usize] });
-                        packed.push(pack(layout, &manifest.autoencoder.latent, &plan, t as u64, &poses[t], frame)?);
-                        r.previous = Some(plan);
+                        let (plan, _) = r.store.select(policy, &r.frusta[r.next], r.previous.as_ref());
+                        r.previous = Some(plan.clone());
+                        plans.push(plan);
                     }
-                    let contexts: Vec<&[(String, Tensor)]> = packed.iter().map(|p| p.tensors.as_slice()).collect();
-                    let context = stack(&contexts);
-                    let action = Tensor::new(vec![chunk.len(), 7], chunk.iter().flat_map(|&i| runs[i].traj.actions[runs[i].next]).collect());
-                    let rel_time = Tensor::new(vec![chunk.len()], packed.iter().map(|p| p.rel_time).collect());
-                    let cond = Conditioning { context: &context, action: &action, rel_time: &rel_time };
-                    let latent = model.sample(&layout.name, &cond, sampler, seed ^ step.wrapping_mul(0x9e37_79b9_7f4a_7c15))?;
-                    step += 1;
-                    let images = model.decode(&latent)?;
-                    let per = latent.data.len() / chunk.len();
-                    for (j, &i) in chunk.iter().enumerate() {
+                    let requests: Vec<Request> = chunk
+                        .iter()
+                        .zip(&plans)
+                        .map(|(&i, plan)| {
+                            let (r, t) = (&runs[i], runs[i].next);
+                            Request { plan, target_time: t as u64, target_pose: &r.traj.poses[t], action: &r.traj.actions[t], seed: frame_seed(seed, i, t) }
+                        })
+                        .collect();
+                    // Frames from the returning point on are the model's own.
+                    let frame = |j: usize, id: u64| {
+                        let r = &runs[chunk[j]];
+                        let generated = id as usize >= r.traj.entry.returning_point.clamp(1, r.traj.len());
+                        r.latents.get(id as usize).map(|l| ContextFrame { latent: l, time: id, pose: &r.traj.poses[id as usize], generated })
+                    };
+                    let prediction = model.predict(&policy.packing, &requests, &frame, sampler)?;
+                    drop(requests);
+                    for (&i, p) in chunk.iter().zip(prediction.frames) {
                         let r = &mut runs[i];
                         let t = r.next;
-                        let img = tensor_to_frame(&images, j)?;
-                        r.scores.push(scorer.score(r.traj, t, &img)?);
+                        r.scores.push(scorer.score(r.traj, t, &p.rgb)?);
                         if scorer.keep_frames {
-                            r.frames.push(img);
+                            r.frames.push(p.rgb);
                         }
-                        r.latents.push(latent.data[j * per..(j + 1) * per].to_vec());
+                        r.latents.push(p.latent);
                         r.store
                             .insert(MemoryFrame { id: t as u64, time: t as u64, frustum: r.frusta[t].clone() })
                             .map_err(|e| ProbeError::Invalid(e.to_string()))?;

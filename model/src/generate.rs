@@ -7,7 +7,7 @@ use memory::rng::SplitMix64;
 use crate::error::ModelError;
 use crate::graph::Tensor;
 use crate::sampler::Sampler;
-use crate::Model;
+use crate::{GraphRole, Model};
 
 /// `n` standard normal samples from `seed` (Box–Muller over SplitMix64).
 pub fn gaussian(seed: u64, n: usize) -> Vec<f32> {
@@ -34,26 +34,37 @@ pub struct Conditioning<'a> {
     pub rel_time: &'a Tensor,
 }
 
+/// Item `item`'s noise for sampler step `step` (`None`: the start noise):
+/// drawn from the item's own seed alone, so a frame does not depend on what
+/// else shares its batch.
+fn item_noise(seed: u64, step: Option<usize>, n: usize) -> Vec<f32> {
+    gaussian(step.map_or(seed, |i| seed.wrapping_add(1 + i as u64)), n)
+}
+
 impl Model {
-    /// Samples target latents (scaled) for a batch: start noise and per-step
-    /// noise from `seed`, `sampler.len()` denoiser calls.
-    pub fn sample(&self, layout: &str, cond: &Conditioning, sampler: &Sampler, seed: u64) -> Result<Tensor, ModelError> {
-        let graph = self.denoiser(layout)?;
+    /// Samples target latents (scaled) for a batch, one seed per item: the
+    /// start noise and every step's noise come from that seed,
+    /// `sampler.len()` denoiser calls in all.
+    pub fn sample(&self, layout: &str, cond: &Conditioning, sampler: &Sampler, seeds: &[u64]) -> Result<Tensor, ModelError> {
         let l = &self.manifest().autoencoder.latent;
         let batch = cond.action.shape.first().copied().unwrap_or(0);
         if batch == 0 || cond.rel_time.shape != [batch] {
             return Err(ModelError::input("rel_time", format!("expected shape [{batch}], got {:?}", cond.rel_time.shape)));
         }
+        if seeds.len() != batch {
+            return Err(ModelError::input("seeds", format!("one seed per item: {batch} items, {} seeds", seeds.len())));
+        }
         let shape = vec![batch, l.channels, l.height, l.width];
-        let n = batch * l.len();
-        let mut x = gaussian(seed, n);
+        let per = l.len();
+        let draw = |step: Option<usize>| seeds.iter().flat_map(|&s| item_noise(s, step, per)).collect::<Vec<f32>>();
+        let mut x = draw(None);
         for (i, &t) in sampler.timesteps.iter().enumerate() {
             let x_t = Tensor::new(shape.clone(), x);
             let timestep = Tensor::new(vec![batch], vec![t as f32; batch]);
             let mut inputs: Vec<(&str, &Tensor)> = cond.context.iter().map(|(k, v)| (k.as_str(), v)).collect();
             inputs.extend([("x_t", &x_t), ("timestep", &timestep), ("action", cond.action), ("rel_time", cond.rel_time)]);
-            let eps = graph.run(&inputs)?.remove(0);
-            let z = gaussian(seed.wrapping_add(1 + i as u64), n);
+            let eps = self.run(GraphRole::Denoiser(layout), &inputs)?.remove(0);
+            let z = if sampler.injects_noise(i) { draw(Some(i)) } else { vec![0.0; x_t.data.len()] };
             x = sampler.step(i, &x_t.data, &eps.data, &z);
         }
         Ok(Tensor::new(shape, x))

@@ -6,45 +6,45 @@
 //! `ORT_DYLIB_PATH`, else from the `onnxruntime` wheel in the repository's
 //! `.venv` (see [`runtime::locate_library`]).
 
+pub mod backend;
 pub mod error;
 pub mod generate;
 pub mod graph;
 pub mod manifest;
 pub mod pack;
+pub mod predict;
 pub mod runtime;
 pub mod sampler;
 
 use std::path::{Path, PathBuf};
 
+pub use backend::{Backend, GraphRole, LocalGraphs};
 pub use error::ModelError;
 pub use graph::{Graph, Tensor};
 pub use manifest::Manifest;
+pub use predict::{Predicted, Request};
 pub use runtime::{Provider, RuntimeOptions};
 pub use sampler::{Method, Sampler};
 
-/// A loaded model folder: manifest, autoencoder and one denoiser per layout.
+/// A loaded model: its folder, manifest, and the backend that runs its graphs.
 pub struct Model {
     dir: PathBuf,
     manifest: Manifest,
-    encoder: Graph,
-    decoder: Graph,
-    denoisers: Vec<(String, Graph)>,
+    backend: Box<dyn Backend>,
 }
 
 impl Model {
-    /// Reads the manifest, opens every graph and checks each graph's inputs
-    /// and outputs against it.
+    /// Reads the manifest, opens every graph in ONNX Runtime and checks each
+    /// graph's inputs and outputs against it.
     pub fn load(dir: &Path, options: RuntimeOptions) -> Result<Model, ModelError> {
         let manifest = Manifest::load(dir)?;
-        let encoder = Graph::open(dir, &manifest.autoencoder.encoder, options)?;
-        let decoder = Graph::open(dir, &manifest.autoencoder.decoder, options)?;
-        let denoisers = manifest
-            .denoiser
-            .layouts
-            .iter()
-            .map(|l| Ok((l.name.clone(), Graph::open(dir, &l.graph(), options)?)))
-            .collect::<Result<Vec<_>, ModelError>>()?;
-        Ok(Model { dir: dir.to_path_buf(), manifest, encoder, decoder, denoisers })
+        let graphs = LocalGraphs::open(dir, &manifest, options)?;
+        Ok(Model::with_backend(dir, manifest, Box::new(graphs)))
+    }
+
+    /// A model whose graphs run elsewhere (the manifest still describes them).
+    pub fn with_backend(dir: &Path, manifest: Manifest, backend: Box<dyn Backend>) -> Model {
+        Model { dir: dir.to_path_buf(), manifest, backend }
     }
 
     pub fn dir(&self) -> &Path {
@@ -56,29 +56,25 @@ impl Model {
     }
 
     /// The execution provider that runs the denoiser.
-    pub fn provider(&self) -> &'static str {
-        self.denoisers.first().map_or(self.encoder.provider(), |(_, g)| g.provider())
+    pub fn provider(&self) -> &str {
+        self.backend.provider()
     }
 
-    pub fn encoder(&self) -> &Graph {
-        &self.encoder
+    /// The graphs in this process, for callers that time or check one graph
+    /// alone; an error when the backend is remote.
+    pub fn local(&self) -> Result<&LocalGraphs, ModelError> {
+        self.backend.local().ok_or_else(|| ModelError::input("backend", "this model's graphs do not run in this process"))
     }
 
-    pub fn decoder(&self) -> &Graph {
-        &self.decoder
-    }
-
-    pub fn denoiser(&self, layout: &str) -> Result<&Graph, ModelError> {
-        self.denoisers.iter().find(|(n, _)| n == layout).map(|(_, g)| g).ok_or_else(|| {
-            let known: Vec<&str> = self.denoisers.iter().map(|(n, _)| n.as_str()).collect();
-            ModelError::input("layout", format!("this model has no {layout:?} layout; it has {known:?}"))
-        })
+    /// Runs one graph through the backend.
+    pub fn run(&self, role: GraphRole, inputs: &[(&str, &Tensor)]) -> Result<Vec<Tensor>, ModelError> {
+        self.backend.run(role, inputs)
     }
 
     /// Images (B, 3, H, W) in [-1, 1] to scaled latents (B, C, h, w).
     pub fn encode(&self, images: &Tensor) -> Result<Tensor, ModelError> {
         let name = &self.manifest.autoencoder.encoder.inputs[0].name;
-        let mut out = self.encoder.run(&[(name.as_str(), images)])?.remove(0);
+        let mut out = self.run(GraphRole::Encoder, &[(name.as_str(), images)])?.remove(0);
         let scale = self.manifest.autoencoder.latent_scale as f32;
         out.data.iter_mut().for_each(|v| *v *= scale);
         Ok(out)
@@ -89,6 +85,6 @@ impl Model {
         let scale = self.manifest.autoencoder.latent_scale as f32;
         let raw = Tensor::new(latents.shape.clone(), latents.data.iter().map(|v| v / scale).collect());
         let name = &self.manifest.autoencoder.decoder.inputs[0].name;
-        Ok(self.decoder.run(&[(name.as_str(), &raw)])?.remove(0))
+        Ok(self.run(GraphRole::Decoder, &[(name.as_str(), &raw)])?.remove(0))
     }
 }

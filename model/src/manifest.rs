@@ -11,6 +11,9 @@ use crate::error::ModelError;
 
 pub const FORMAT: &str = "worldpack-model/1";
 
+/// Inputs named `context_noise_r<rate>` carry a noise level per context slot.
+pub const CONTEXT_NOISE_PREFIX: &str = "context_noise_r";
+
 #[derive(Clone, Debug, Deserialize)]
 pub struct Manifest {
     pub format: String,
@@ -112,6 +115,11 @@ pub struct LayoutSpec {
 }
 
 impl LayoutSpec {
+    /// Whether the graph takes a noise level per context slot.
+    pub fn takes_context_noise(&self) -> bool {
+        self.inputs.iter().any(|i| i.name.starts_with(CONTEXT_NOISE_PREFIX))
+    }
+
     pub fn graph(&self) -> GraphSpec {
         GraphSpec { file: self.file.clone(), inputs: self.inputs.clone(), outputs: self.outputs.clone() }
     }
@@ -125,6 +133,19 @@ pub struct DenoiserSpec {
     pub parameters: Option<u64>,
     pub rates: Vec<u32>,
     pub layouts: Vec<LayoutSpec>,
+    /// Present when the denoiser takes a noise level per context frame
+    /// (`context_noise_r<rate>` inputs): which level marks which frames.
+    #[serde(default)]
+    pub context_noise: Option<ContextNoiseSpec>,
+}
+
+/// The context noise levels the runtime feeds: training corrupted context
+/// latents by a known level, and at inference the level says how far a frame
+/// is to be trusted: observed frames are clean, generated ones are not.
+#[derive(Clone, Copy, Debug, Deserialize, PartialEq)]
+pub struct ContextNoiseSpec {
+    pub observed_level: f32,
+    pub generated_level: f32,
 }
 
 #[derive(Clone, Debug, Deserialize)]
@@ -208,6 +229,13 @@ impl Manifest {
             }
             if layout.frames != layout.slots.iter().map(|s| s.count).sum::<usize>() {
                 return bad(&format!("{at}.frames"), "must equal the sum of the slot counts".into());
+            }
+            let noise_inputs = layout.inputs.iter().filter(|i| i.name.starts_with(CONTEXT_NOISE_PREFIX)).count();
+            if noise_inputs > 0 && d.context_noise.is_none() {
+                return bad("denoiser.context_noise", format!("{at} takes context noise levels, but the manifest does not say which"));
+            }
+            if noise_inputs != 0 && noise_inputs != layout.slots.len() {
+                return bad(&format!("{at}.inputs"), "context noise levels for some rates but not all".into());
             }
         }
         let f = &self.diffusion;

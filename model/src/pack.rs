@@ -6,14 +6,16 @@ use memory::{ContextPlan, Pose};
 
 use crate::error::ModelError;
 use crate::graph::Tensor;
-use crate::manifest::{LatentSpec, LayoutSpec};
+use crate::manifest::{CONTEXT_NOISE_PREFIX, ContextNoiseSpec, LatentSpec, LayoutSpec};
 
-/// A stored frame as the denoiser needs it: its scaled latent, time and pose.
+/// A stored frame as the denoiser needs it: its scaled latent, time and pose,
+/// and whether the model generated it (rather than a camera observing it).
 #[derive(Clone, Copy, Debug)]
 pub struct ContextFrame<'a> {
     pub latent: &'a [f32],
     pub time: u64,
     pub pose: &'a Pose,
+    pub generated: bool,
 }
 
 /// The context inputs of one sample (batch 1), named as the graph names them.
@@ -29,24 +31,26 @@ pub struct PackedContext {
 pub fn pack<'a>(
     layout: &LayoutSpec,
     latent: &LatentSpec,
+    noise: Option<&ContextNoiseSpec>,
     plan: &ContextPlan,
     target_time: u64,
     target_pose: &Pose,
     frame: impl Fn(u64) -> Option<ContextFrame<'a>>,
 ) -> Result<PackedContext, ModelError> {
     let n = latent.len();
-    let mut groups: Vec<(u32, usize, Vec<f32>, Vec<f32>, Vec<f32>, Vec<f32>)> = layout
-        .slots
-        .iter()
-        .map(|s| (s.rate, 0, vec![0.0; s.count * n], vec![0.0; s.count], vec![0.0; s.count * 12], vec![0.0; s.count]))
-        .collect();
+    let noise = match (layout.takes_context_noise(), noise) {
+        (false, _) => None,
+        (true, Some(levels)) => Some(levels),
+        (true, None) => return Err(ModelError::manifest("denoiser.context_noise", format!("layout {} takes context noise levels; the manifest gives none", layout.name))),
+    };
+    let mut groups: Vec<Group> = layout.slots.iter().map(|s| Group::empty(s.rate, s.count, n)).collect();
     let mut newest: Option<u64> = None;
     for (i, slot) in plan.slots.iter().enumerate() {
-        let Some(g) = groups.iter_mut().position(|g| g.0 == slot.rate) else {
+        let Some(g) = groups.iter().position(|g| g.rate == slot.rate) else {
             return Err(ModelError::input(format!("plan.slots[{i}].rate"), format!("layout {} has no rate {}", layout.name, slot.rate)));
         };
         let capacity = layout.slots[g].count;
-        let (_, used, lat, time, pose, mask) = &mut groups[g];
+        let Group { used, latents: lat, times: time, poses: pose, mask, levels, .. } = &mut groups[g];
         if *used == capacity {
             return Err(ModelError::input(
                 format!("plan.slots[{i}]"),
@@ -74,20 +78,44 @@ pub fn pack<'a>(
             }
         }
         mask[at] = 1.0;
+        if let Some(l) = noise {
+            levels[at] = if f.generated { l.generated_level } else { l.observed_level };
+        }
         newest = Some(newest.map_or(f.time, |t| t.max(f.time)));
     }
     let Some(newest) = newest else {
         return Err(ModelError::input("plan", "no slot holds a frame; the model needs at least one"));
     };
     let mut tensors = Vec::new();
-    for (s, (rate, _, lat, time, pose, mask)) in layout.slots.iter().zip(groups) {
-        let k = s.count;
-        tensors.push((format!("context_r{rate}"), Tensor::new(vec![1, k, latent.channels, latent.height, latent.width], lat)));
-        tensors.push((format!("context_time_r{rate}"), Tensor::new(vec![1, k], time)));
-        tensors.push((format!("context_pose_r{rate}"), Tensor::new(vec![1, k, 12], pose)));
-        tensors.push((format!("context_mask_r{rate}"), Tensor::new(vec![1, k], mask)));
+    for (s, g) in layout.slots.iter().zip(groups) {
+        let (k, rate) = (s.count, g.rate);
+        tensors.push((format!("context_r{rate}"), Tensor::new(vec![1, k, latent.channels, latent.height, latent.width], g.latents)));
+        tensors.push((format!("context_time_r{rate}"), Tensor::new(vec![1, k], g.times)));
+        tensors.push((format!("context_pose_r{rate}"), Tensor::new(vec![1, k, 12], g.poses)));
+        tensors.push((format!("context_mask_r{rate}"), Tensor::new(vec![1, k], g.mask)));
+        if noise.is_some() {
+            tensors.push((format!("{CONTEXT_NOISE_PREFIX}{rate}"), Tensor::new(vec![1, k], g.levels)));
+        }
     }
     Ok(PackedContext { tensors, rel_time: (target_time - newest) as f32 })
+}
+
+/// One rate's slots while they are filled.
+struct Group {
+    rate: u32,
+    used: usize,
+    latents: Vec<f32>,
+    times: Vec<f32>,
+    poses: Vec<f32>,
+    mask: Vec<f32>,
+    levels: Vec<f32>,
+}
+
+impl Group {
+    fn empty(rate: u32, count: usize, latent_len: usize) -> Group {
+        let zeros = |n: usize| vec![0.0; n];
+        Group { rate, used: 0, latents: zeros(count * latent_len), times: zeros(count), poses: zeros(count * 12), mask: zeros(count), levels: zeros(count) }
+    }
 }
 
 /// Concatenates samples along the batch axis (every sample from one layout).

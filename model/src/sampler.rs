@@ -70,6 +70,11 @@ impl Sampler {
         self.timesteps.len()
     }
 
+    /// Whether step `i` adds noise: never on the last step, nor in DDIM with eta 0.
+    pub fn injects_noise(&self, i: usize) -> bool {
+        i + 1 < self.len() && (self.method == Method::Ancestral || self.eta > 0.0)
+    }
+
     pub fn is_empty(&self) -> bool {
         self.timesteps.is_empty()
     }

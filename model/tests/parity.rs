@@ -49,9 +49,10 @@ fn inputs_of<'a>(graph: &model::Graph, folder: &str, store: &'a mut Vec<(String,
 fn every_graph_matches_pytorch() {
     let m = model();
     assert_eq!(m.provider(), "cpu");
-    let mut graphs: Vec<(String, &model::Graph)> = vec![("encoder".into(), m.encoder()), ("decoder".into(), m.decoder())];
+    let local = m.local().unwrap();
+    let mut graphs: Vec<(String, &model::Graph)> = vec![("encoder".into(), &local.encoder), ("decoder".into(), &local.decoder)];
     for layout in &m.manifest().denoiser.layouts {
-        graphs.push((format!("denoiser_{}", layout.name), m.denoiser(&layout.name).unwrap()));
+        graphs.push((format!("denoiser_{}", layout.name), local.denoiser(&layout.name).unwrap()));
     }
     assert_eq!(graphs.len(), 4, "encoder, decoder, worldpack and baseline denoisers");
     for (name, graph) in graphs {
@@ -107,8 +108,8 @@ fn packing_a_plan_reproduces_the_reference_inputs() {
                 slots.push(Slot { rate, frame });
             }
             let plan = ContextPlan { slots };
-            let p = pack(layout, latent, &plan, target_time, &target, |id| {
-                frames.iter().find(|f| f.0 == id).map(|f| ContextFrame { latent: &f.1, time: f.0, pose: &f.2 })
+            let p = pack(layout, latent, None, &plan, target_time, &target, |id| {
+                frames.iter().find(|f| f.0 == id).map(|f| ContextFrame { latent: &f.1, time: f.0, pose: &f.2, generated: false })
             })
             .unwrap();
             let want_rel = reference(&folder, "rel_time").data[b];
@@ -143,7 +144,7 @@ fn samplers_follow_the_pytorch_traces() {
         let noise = reference(folder, "noise");
         let per = xs.data.len() / xs.shape[0];
         let sample_shape = xs.shape[1..].to_vec();
-        let graph = m.denoiser(layout).unwrap();
+        let graph = m.local().unwrap().denoiser(layout).unwrap();
         let cond_folder = format!("reference/denoiser_{layout}");
         let mut store = Vec::new();
         let mut inputs = inputs_of(graph, &cond_folder, &mut store);
@@ -270,18 +271,18 @@ fn bad_plans_name_the_slot() {
     let latent = &m.manifest().autoencoder.latent;
     let target = Pose::from_position(Default::default());
     let z = vec![0.0; latent.len()];
-    let frame = |_id: u64| Some(ContextFrame { latent: &z, time: 3, pose: &target });
+    let frame = |_id: u64| Some(ContextFrame { latent: &z, time: 3, pose: &target, generated: false });
     let sel = |id| Some(SelectedFrame { id, time: 3, overlap: 0.0, score: 0.0 });
     let plan = ContextPlan { slots: vec![Slot { rate: 4, frame: sel(1) }] };
-    let err = pack(layout, latent, &plan, 5, &target, frame).unwrap_err().to_string();
+    let err = pack(layout, latent, None, &plan, 5, &target, frame).unwrap_err().to_string();
     assert!(err.starts_with("plan.slots[0].rate") && err.contains("no rate 4"), "{err}");
     let plan = ContextPlan { slots: vec![Slot { rate: 1, frame: None }] };
-    let err = pack(layout, latent, &plan, 5, &target, frame).unwrap_err().to_string();
+    let err = pack(layout, latent, None, &plan, 5, &target, frame).unwrap_err().to_string();
     assert!(err.starts_with("plan:"), "{err}");
     let plan = ContextPlan { slots: vec![Slot { rate: 1, frame: sel(1) }] };
-    let err = pack(layout, latent, &plan, 3, &target, frame).unwrap_err().to_string();
+    let err = pack(layout, latent, None, &plan, 3, &target, frame).unwrap_err().to_string();
     assert!(err.contains("not before the target"), "{err}");
     let slots = (0..5).map(|_| Slot { rate: 1, frame: sel(1) }).collect();
-    let err = pack(layout, latent, &ContextPlan { slots }, 5, &target, frame).unwrap_err().to_string();
+    let err = pack(layout, latent, None, &ContextPlan { slots }, 5, &target, frame).unwrap_err().to_string();
     assert!(err.starts_with("plan.slots[4]"), "{err}");
 }

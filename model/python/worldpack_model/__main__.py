@@ -1,4 +1,4 @@
-"""`python -m worldpack_model <stage>`: train-ae, encode, train, export, sample.
+"""`python -m worldpack_model <stage>`: train-ae, encode, train, variants, export, recover.
 See docs/model.md for the whole recipe."""
 
 from __future__ import annotations
@@ -12,6 +12,24 @@ from .config import LAYOUTS
 def main() -> None:
     ap = argparse.ArgumentParser(prog="worldpack_model", description=__doc__)
     sub = ap.add_subparsers(dest="stage", required=True)
+
+    def recipe_options(p):
+        g = p.add_argument_group("training for autoregressive stability (recipe.py; all off by default)")
+        g.add_argument("--context-noise", type=float, default=0.0, help="largest noise level on context latents (0: off)")
+        g.add_argument("--context-noise-share", type=float, default=0.5, help="share of context frames that get noise")
+        g.add_argument("--rollout-share", type=float, default=0.0,
+                       help="share of each batch whose newest context frame is the model's own prediction (0: off)")
+        g.add_argument("--rollout-steps", type=int, default=4, help="DDIM steps for those predictions")
+        g.add_argument("--generated-level", type=float, default=0.0,
+                       help="context noise level that marks a generated frame (in training and, via the manifest, at inference)")
+        g.add_argument("--pose-noise-translation", type=float, default=0.0, help="sd of context pose noise, blocks")
+        g.add_argument("--pose-noise-degrees", type=float, default=0.0, help="sd of context rotation noise, degrees")
+
+    def recipe_of(a):
+        from .recipe import Recipe
+
+        return Recipe(a.context_noise, a.context_noise_share, a.rollout_share, a.rollout_steps, a.generated_level,
+                      a.pose_noise_translation, a.pose_noise_degrees)
 
     def common(p, data=True):
         if data:
@@ -43,6 +61,7 @@ def main() -> None:
     p.add_argument("--memory-focus", type=float, default=0.0,
                    help="share of each batch drawn from targets that need memory beyond the 4 newest frames "
                         "(needs `worldpack plan --memory-need`; 0: uniform)")
+    recipe_options(p)
 
     p = sub.add_parser("variants", help="the paper's order: the 4-frame baseline from scratch, then nearest frame "
                        "packing, memory retrieval and WorldPack each fine-tuned from it (resumable, one stage at a time)")
@@ -58,6 +77,7 @@ def main() -> None:
     p.add_argument("--baseline", type=Path,
                    help="fine-tune from this finished baseline checkpoint instead of training one in --run")
     p.add_argument("--policies", help="comma-separated fine-tunes (default: nearest_frame_packing,memory_retrieval,worldpack)")
+    recipe_options(p)
 
     p = sub.add_parser("export", help="write ONNX graphs, manifest.json and references to --out")
     common(p, data=False)
@@ -67,14 +87,24 @@ def main() -> None:
     p.add_argument("--out", type=Path, required=True)
     p.add_argument("--half", action="store_true", help="round the weights to float16 and store them so (half the size)")
 
+    p = sub.add_parser("recover", help="rebuild a run folder's checkpoints (config, autoencoder, CDiT) from an exported "
+                       "model folder, checked against its reference outputs, so a committed model can be fine-tuned")
+    p.add_argument("--model", type=Path, required=True, help="an exported model folder (manifest.json, ONNX graphs)")
+    p.add_argument("--run", type=Path, required=True, help="the run folder to write")
+    p.add_argument("--policy", help="name the checkpoint cdit-<policy>.pt (default: the manifest's training policy)")
+
     a = ap.parse_args()
     import torch
 
-    if a.threads:
+    if getattr(a, "threads", 0):
         torch.set_num_threads(a.threads)
     from . import train
 
-    if a.stage == "train-ae":
+    if a.stage == "recover":
+        from . import recover
+
+        recover.recover(a.model, a.run, a.policy)
+    elif a.stage == "train-ae":
         train.train_autoencoder(a.data, a.run, a.steps, a.batch, a.lr, a.device, a.minutes)
     elif a.stage == "encode":
         train.encode(a.data, a.run, a.device)
@@ -83,10 +113,11 @@ def main() -> None:
         if not (a.run / "autoencoder.pt").exists():
             train.train_autoencoder(a.data, a.run, 4000, 32, 1e-3, a.device, a.minutes)
         train.encode(a.data, a.run, a.device)  # skips trajectories already cached
-        train.train_cdit(a.data, a.run, a.policy, a.steps, a.batch, a.lr, a.ema, a.device, a.minutes, a.init_from, a.memory_focus)
+        train.train_cdit(a.data, a.run, a.policy, a.steps, a.batch, a.lr, a.ema, a.device, a.minutes, a.init_from, a.memory_focus,
+                         recipe_of(a))
     elif a.stage == "variants":
         train.train_variants(a.data, a.run, a.baseline_steps, a.fraction, a.batch, a.lr, a.ema, a.device, a.minutes,
-                             a.memory_focus, a.baseline, a.policies.split(",") if a.policies else None)
+                             a.memory_focus, a.baseline, a.policies.split(",") if a.policies else None, recipe_of(a))
     elif a.stage == "export":
         from . import export
 

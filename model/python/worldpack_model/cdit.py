@@ -168,6 +168,9 @@ class CDiT(nn.Module):
         self.action_embed = nn.Sequential(nn.Linear(cfg.action_dim, h), nn.SiLU(), nn.Linear(h, h))
         self.register_buffer("action_scale", torch.tensor(ACTION_SCALE[: cfg.action_dim]), persistent=False)
         self.pose_embed = nn.Sequential(nn.Linear(12, h), nn.SiLU(), nn.Linear(h, h))
+        if cfg.context_noise:
+            # Levels are small (0..1): a unit of 0.001 spreads them over the sinusoid's periods.
+            self.context_noise_embed = ScalarEmbedder(h, 0.001)
         pose_scale = torch.ones(12)
         pose_scale[[3, 7, 11]] = 1.0 / cfg.pose_translation_scale
         self.register_buffer("pose_scale", pose_scale, persistent=False)
@@ -191,6 +194,10 @@ class CDiT(nn.Module):
         for emb in (self.t_embed.mlp, self.rel_time_embed.mlp, self.action_embed, self.pose_embed):
             nn.init.normal_(emb[0].weight, std=0.02)
             nn.init.normal_(emb[2].weight, std=0.02)
+        if self.cfg.context_noise:
+            # Zero: a fine-tune from a model without it starts as that model.
+            nn.init.normal_(self.context_noise_embed.mlp[0].weight, std=0.02)
+            nn.init.zeros_(self.context_noise_embed.mlp[2].weight)
         for blk in self.blocks:
             nn.init.zeros_(blk.ada[-1].weight)
             nn.init.zeros_(blk.ada[-1].bias)
@@ -230,8 +237,9 @@ class CDiT(nn.Module):
         code = sincos_2d_at(self.cfg.hidden, gy, gx) * near_view.unsqueeze(-1).to(z.dtype)
         return (code * self.landing_gate).sum(dim=3)
 
-    def embed_group(self, rate: int, frames, offsets, poses, mask):
-        """One rate's slots -> tokens (B, S*n, D), key positions and mask (B, S*n)."""
+    def embed_group(self, rate: int, frames, offsets, poses, mask, noise=None):
+        """One rate's slots -> tokens (B, S*n, D), key positions and mask (B, S*n).
+        `noise` (B, S): each frame's context noise level (models with `context_noise`)."""
         b, s, c, hh, ww = frames.shape
         proj = self.patchify if rate == 1 else self.rate_proj[f"r{rate}"]
         k = proj.kernel_size[0]
@@ -244,6 +252,8 @@ class CDiT(nn.Module):
         x = x.reshape(b, s, n, -1) + self.pose_embed(poses * self.pose_scale).unsqueeze(2)
         if self.cfg.landing_depths:
             x = x + self.landing_code(rate, poses)
+        if self.cfg.context_noise:
+            x = x + self.context_noise_embed(noise.reshape(-1)).view(b, s, 1, -1)
         tokens = x.reshape(b, s * n, -1)
         positions = offsets.unsqueeze(-1).expand(b, s, n).reshape(b, s * n)
         token_mask = mask.unsqueeze(-1).expand(b, s, n).reshape(b, s * n)
@@ -252,8 +262,12 @@ class CDiT(nn.Module):
     def forward(self, x_t, timestep, action, rel_time, groups, rates=None):
         """groups: per rate in `rates` (default cfg.rates order of the layout),
         a tuple (frames (B,S,C,h,w), time offsets (B,S), relative poses (B,S,12),
-        mask (B,S)). Returns the predicted noise, shaped like x_t."""
+        mask (B,S)[, noise levels (B,S) with `context_noise`]). Returns the
+        predicted noise, shaped like x_t."""
         rates = rates or self.cfg.rates
+        want = 5 if self.cfg.context_noise else 4
+        if len(groups) != len(rates) or any(len(g) != want for g in groups):
+            raise ValueError(f"expected {len(rates)} context groups of {want} tensors for rates {rates}")
         b, c, hh, ww = x_t.shape
         p = self.cfg.patch
         x = self.patchify(x_t).flatten(2).transpose(1, 2) + self.pos_r1

@@ -75,6 +75,10 @@ class CDiTConfig:
     landing_depths: tuple[float, ...] = ()
     # The camera's focal length over the image width (fx / W), for those rays.
     focal: float = 0.0
+    # A noise level per context frame as a model input (`context_noise_r<rate>`):
+    # training corrupts context latents by that much, and at inference the
+    # runtime tells the model which frames it generated itself. False: older runs.
+    context_noise: bool = False
 
     @property
     def grid(self) -> int:

@@ -60,6 +60,8 @@ class Batch:
     action: np.ndarray
     rel_time: np.ndarray
     groups: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]
+    # (trajectory, frame) of each target, so a trainer can gather related batches.
+    rows: list[tuple[int, int]]
 
 
 # A target needs memory when at least this share of its view is shown only by
@@ -148,4 +150,4 @@ class PlannedLatents:
             part = slice(start, start + count)
             groups.append(tuple(np.stack([s[k][part] for s in slots]) for k in range(4)))
             start += count
-        return Batch(np.stack(targets), np.stack(actions).astype(np.float32), np.array(rel_times, np.float32), groups)
+        return Batch(np.stack(targets), np.stack(actions).astype(np.float32), np.array(rel_times, np.float32), groups, list(rows))

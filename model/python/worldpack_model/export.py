@@ -32,10 +32,16 @@ REFERENCE_BATCH = 2
 TRACE_STEPS = 4
 
 
-def input_names(layout: Layout) -> list[str]:
+def context_keys(cfg: ModelConfig) -> tuple[str, ...]:
+    """A context group's inputs, in the model's order."""
+    keys = ("context", "context_time", "context_pose", "context_mask")
+    return keys + ("context_noise",) if cfg.cdit.context_noise else keys
+
+
+def input_names(cfg: ModelConfig, layout: Layout) -> list[str]:
     names = ["x_t", "timestep", "action", "rel_time"]
     for r in layout.rates:
-        names += [f"context_r{r}", f"context_time_r{r}", f"context_pose_r{r}", f"context_mask_r{r}"]
+        names += [f"{k}_r{r}" for k in context_keys(cfg)]
     return names
 
 
@@ -45,9 +51,11 @@ class LayoutGraph(nn.Module):
     def __init__(self, model: CDiT, layout: Layout):
         super().__init__()
         self.model, self.layout = model, layout
+        self.per_group = 5 if model.cfg.context_noise else 4
 
     def forward(self, x_t, timestep, action, rel_time, *context):
-        groups = [tuple(context[4 * i: 4 * i + 4]) for i in range(len(self.layout.rates))]
+        k = self.per_group
+        groups = [tuple(context[k * i: k * i + k]) for i in range(len(self.layout.rates))]
         return self.model(x_t, timestep, action, rel_time, groups, rates=self.layout.rates)
 
 
@@ -148,6 +156,10 @@ def denoiser_io(cfg: ModelConfig, layout: Layout) -> tuple[list[dict], list[dict
             tensor_spec(f"context_pose_r{r}", ["batch", n, 12], "float32", "context camera in the target camera frame, 3x4 row-major (see pose_embedding)"),
             tensor_spec(f"context_mask_r{r}", ["batch", n], "float32", "1 = slot holds a frame, 0 = empty (at least one slot per sample must be 1)"),
         ]
+        if cfg.cdit.context_noise:
+            ins.append(tensor_spec(f"context_noise_r{r}", ["batch", n], "float32",
+                                   "context noise level per slot: 0 for an observed frame, denoiser.context_noise.generated_level "
+                                   "for a frame the model generated (0 in empty slots)"))
     outs = [tensor_spec("eps", ["batch", c, s, s], "float32", "predicted noise epsilon")]
     return ins, outs
 
@@ -227,9 +239,11 @@ def export(run: Path, policy: str, layout_names: list[str], data: Path, out: Pat
         x_t = np.sqrt(ab) * batch.target + np.sqrt(1 - ab) * noise
         arrays = {"x_t": x_t, "timestep": t, "action": batch.action, "rel_time": batch.rel_time}
         for r, g in zip(layout.rates, batch.groups):
-            for key, arr in zip(("context", "context_time", "context_pose", "context_mask"), g):
+            if cfg.cdit.context_noise:  # non-zero levels, so the references pin the input's effect
+                g = (*g, (rng.uniform(0, 0.3, g[3].shape) * g[3]).astype(np.float32))
+            for key, arr in zip(context_keys(cfg), g):
                 arrays[f"{key}_r{r}"] = arr
-        names = input_names(layout)
+        names = input_names(cfg, layout)
         args = tuple(torch.from_numpy(arrays[n]) for n in names)
         graph = LayoutGraph(model, layout)
         with torch.no_grad():
@@ -318,6 +332,9 @@ def export(run: Path, policy: str, layout_names: list[str], data: Path, out: Pat
             "weights": "denoiser.weights",
             "weights_storage": "float16 (parameters rounded to float16 before export; computed in float32)" if half else "float32",
             "layouts": layouts_json,
+            **({"context_noise": {"observed_level": 0.0, "generated_level": ckpt.get("recipe", {}).get("generated_level", 0.0),
+                                  "meaning": "the level the runtime puts in context_noise_r<rate> for observed and for generated frames"}}
+               if cfg.cdit.context_noise else {}),
         },
         "action": {"dim": cfg.cdit.action_dim, "names": ACTION_NAMES[: cfg.cdit.action_dim],
                    "scale_inside_graph": ACTION_SCALE[: cfg.cdit.action_dim],
@@ -338,6 +355,7 @@ def export(run: Path, policy: str, layout_names: list[str], data: Path, out: Pat
             "data": {"source": "worldpack sim dataset (training world seeds)", "frame_size": [a.image_size, a.image_size]},
             "policy": policy, "steps": ckpt["step"],
             "init_from": ckpt.get("init_from"), "memory_focus": ckpt.get("memory_focus", 0.0),
+            "recipe": ckpt.get("recipe", {}),
             "autoencoder_steps": last("autoencoder").get("step"),
             "final_loss": last(f"cdit-{policy}").get("loss"),
             "samples_per_s": last(f"cdit-{policy}").get("samples_per_s"),
@@ -366,6 +384,8 @@ def measure(cfg: ModelConfig, ae, model: CDiT, data: Path, latent_dir: Path, lay
         source = wdata.PlannedLatents(data, latent_dir, name, layout)
         batch = source.batch(rng, 64)
         groups = [tuple(torch.from_numpy(x) for x in g) for g in batch.groups]
+        if cfg.cdit.context_noise:  # every context frame observed
+            groups = [(*g, torch.zeros_like(g[3])) for g in groups]
         x0 = torch.from_numpy(batch.target)
         act, rel = torch.from_numpy(batch.action), torch.from_numpy(batch.rel_time)
         t = torch.from_numpy(rng.integers(0, cfg.diffusion.timesteps, 64)).float()

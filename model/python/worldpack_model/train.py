@@ -18,6 +18,7 @@ from .autoencoder import Autoencoder, psnr
 from .cdit import CDiT
 from .config import LAYOUTS, ModelConfig
 from .diffusion import Schedule
+from .recipe import ContextAugmenter, Recipe
 
 
 def pick_device(name: str) -> torch.device:
@@ -131,15 +132,41 @@ def encode(data: Path, run: Path, device: str) -> None:
     print(f"latents for {len(dirs)} trajectories in {out}")
 
 
-def to_device(batch: wdata.Batch, dev: torch.device):
-    t = lambda a: torch.from_numpy(a).to(dev)
-    groups = [tuple(t(a) for a in g) for g in batch.groups]
-    return t(batch.target), t(batch.action), t(batch.rel_time), groups
+def load_initial_weights(model: CDiT, init_from: Path, dev: torch.device) -> None:
+    """Fine-tuning (paper: packing variants start from the trained baseline):
+    the checkpoint's EMA weights, every key accounted for. Only the parts a
+    newer option adds may be missing (they start as their initialisation
+    leaves them: zero-gated or re-derived), and nothing may be left over."""
+    base = torch.load(init_from, map_location=dev)["ema"]
+    own = model.state_dict()
+    added_by_options = ("landing_gate", "context_noise_embed.", "rate_proj.")
+    missing = [k for k in own if k not in base]
+    unexpected = [k for k in base if k not in own]
+    refused = [k for k in missing if not k.startswith(added_by_options)]
+    mismatched = [f"{k} {tuple(base[k].shape)} -> {tuple(own[k].shape)}" for k in own if k in base and base[k].shape != own[k].shape]
+    if refused or unexpected or mismatched:
+        raise SystemExit(f"--init-from {init_from}: does not fit this run's model: missing {refused}, "
+                         f"unexpected {unexpected}, other shapes {mismatched}")
+    model.load_state_dict(base, strict=False)
+    if any(k.startswith("rate_proj.") for k in missing):
+        model.init_rate_projections_from_base()  # a baseline has only the base patchify
+    fresh = sorted({k.split(".")[0] for k in missing})
+    print(f"initialised from {init_from}" + (f"; new, from their initialisation: {fresh}" if fresh else ""))
 
 
 def train_cdit(data: Path, run: Path, policy: str, steps: int, batch: int, lr: float, ema_decay: float,
-               device: str, minutes: float | None, init_from: Path | None, memory_focus: float = 0.0) -> None:
+               device: str, minutes: float | None, init_from: Path | None, memory_focus: float = 0.0,
+               recipe: Recipe | None = None) -> None:
+    recipe = recipe or Recipe()
+    recipe.check()
     cfg = run_config(run)
+    if recipe.needs_noise_input() and not cfg.cdit.context_noise:
+        if any(run.glob("cdit-*.pt")):
+            raise SystemExit(f"--context-noise/--generated-level need the context-noise input, and {run} already holds "
+                             "CDiT checkpoints without it: use another --run (sharing autoencoder.pt and latents by links)")
+        cfg.cdit.context_noise = True
+        (run / "config.json").write_text(json.dumps(cfg.to_json(), indent=2))
+        print(f"{run}/config.json: context_noise turned on (a noise level per context frame is now a model input)")
     dev = pick_device(device)
     layout = LAYOUTS[policy]
     missing = set(layout.rates) - set(cfg.cdit.rates)
@@ -165,34 +192,41 @@ def train_cdit(data: Path, run: Path, policy: str, steps: int, batch: int, lr: f
         origin = state.get("init_from", origin)
         model.load_state_dict(state["model"])
         ema.load_state_dict(state["ema"])
-        opt.load_state_dict(state["opt"])
+        if "opt" in state:
+            opt.load_state_dict(state["opt"])
+        else:  # recovered from an export: the weights survive, the optimiser's moments do not
+            print(f"{ckpt.name} has no optimiser state (recovered from an export): AdamW starts afresh")
         step = state["step"]
         if state.get("memory_focus", 0.0) != memory_focus:
             raise SystemExit(f"--memory-focus: {ckpt} was trained with {state.get('memory_focus', 0.0)}, not {memory_focus}; "
                              "resume with the same value or use another --run")
+        saved = state.get("recipe", Recipe().to_json())
+        if saved != recipe.to_json() and "opt" in state:
+            raise SystemExit(f"the recipe differs from the one {ckpt} was trained with ({saved}); "
+                             "resume with the same options or use another --run")
         print(f"resuming {ckpt.name} at step {step}")
     else:
         if init_from is not None:
-            # Fine-tuning (paper: packing variants start from the trained baseline):
-            # copy what matches, then derive the rate kernels from the base patchify.
-            base = torch.load(init_from, map_location=dev)["ema"]
-            model.load_state_dict(base, strict=False)
-            model.init_rate_projections_from_base()
-            print(f"initialised from {init_from}")
+            load_initial_weights(model, init_from, dev)
         ema.load_state_dict(model.state_dict())
     ema.requires_grad_(False)
     rng = np.random.default_rng(1000 + step)
     torch.manual_seed(1000 + step)
+    augment = ContextAugmenter(recipe, source, layout.rates, alpha_bar, cfg.cdit.context_noise, 2000 + step, dev)
     deadline = time.time() + minutes * 60 if minutes is not None else math.inf
     bar = tqdm(total=steps, initial=step, desc=f"cdit {policy}", unit="step")
     started, seen = time.time(), 0
+    checkpoint = lambda: save(ckpt, model=model.state_dict(), ema=ema.state_dict(), opt=opt.state_dict(), step=step,
+                              policy=policy, memory_focus=memory_focus, init_from=origin, recipe=recipe.to_json())
     while step < steps and time.time() < deadline:
-        x0, action, rel_time, groups = to_device(source.batch(rng, batch), dev)
+        x0, action, rel_time, groups = augment(source.batch(rng, batch), ema)
         t = torch.randint(0, cfg.diffusion.timesteps, (batch,), device=dev)
         noise = torch.randn_like(x0)
         ab = alpha_bar[t].view(-1, 1, 1, 1)
         xt = ab.sqrt() * x0 + (1 - ab).sqrt() * noise
-        eps = model(xt, t.float(), action, rel_time, groups)
+        # The layout's own rates, as the export passes them: a layout whose rates
+        # are not a prefix of the model's must not train with the wrong projections.
+        eps = model(xt, t.float(), action, rel_time, groups, rates=layout.rates)
         loss = F.mse_loss(eps, noise)
         opt.zero_grad(set_to_none=True)
         loss.backward()
@@ -209,11 +243,9 @@ def train_cdit(data: Path, run: Path, policy: str, steps: int, batch: int, lr: f
             log(run, {"stage": f"cdit-{policy}", "step": step, "loss": loss.item(),
                       "samples_per_s": seen / (time.time() - started)})
         if step % 500 == 0:
-            save(ckpt, model=model.state_dict(), ema=ema.state_dict(), opt=opt.state_dict(), step=step, policy=policy,
-                 memory_focus=memory_focus, init_from=origin)
+            checkpoint()
     bar.close()
-    save(ckpt, model=model.state_dict(), ema=ema.state_dict(), opt=opt.state_dict(), step=step, policy=policy,
-         memory_focus=memory_focus, init_from=origin)
+    checkpoint()
     print(f"cdit {policy} at step {step} ({seen / max(time.time() - started, 1e-9):.1f} samples/s this run)")
 
 
@@ -226,13 +258,13 @@ def checkpoint_step(path: Path) -> int:
 
 def train_variants(data: Path, run: Path, baseline_steps: int, fraction: float, batch: int, lr: float, ema_decay: float,
                    device: str, minutes: float | None, memory_focus: float = 0.0, baseline: Path | None = None,
-                   policies: list[str] | None = None) -> None:
+                   policies: list[str] | None = None, recipe: Recipe | None = None) -> None:
     """The paper's training order. Each stage resumes its own checkpoint; a
     sitting that runs out of `minutes` stops after checkpointing and the next
     call carries on where it stopped. Fine-tunes start only from a finished
     baseline, so all of them start from the same weights: this run's own, or
     `baseline` (another run's finished checkpoint, e.g. to fine-tune with a
-    changed recipe). `memory_focus` applies to the fine-tunes."""
+    changed recipe). `memory_focus` and `recipe` apply to the fine-tunes."""
     if not 0 < fraction <= 1:
         raise SystemExit(f"--fraction: must be in (0, 1], got {fraction}")
     if baseline is not None and not baseline.exists():
@@ -257,7 +289,7 @@ def train_variants(data: Path, run: Path, baseline_steps: int, fraction: float, 
         if left() == 0:
             print("out of time for this sitting: run again to continue")
             return
-        train_cdit(data, run, policy, fine_steps, batch, lr, ema_decay, device, left(), base, memory_focus)
+        train_cdit(data, run, policy, fine_steps, batch, lr, ema_decay, device, left(), base, memory_focus, recipe)
     done = {p: checkpoint_step(run / f"cdit-{p}.pt") for p in fine_tuned}
     done["baseline"] = checkpoint_step(base)
     print("variants at steps " + ", ".join(f"{k} {v}" for k, v in done.items()))
