@@ -18,7 +18,6 @@ use model::{Method, Model, RuntimeOptions, Sampler};
 use serde::{Deserialize, Serialize};
 
 use crate::digest::model_key;
-use crate::plan::policy_name;
 use crate::sim::bar;
 
 pub struct Options {
@@ -37,20 +36,16 @@ pub struct Options {
     pub lpips: Option<PathBuf>,
     pub dreamsim: Option<PathBuf>,
     pub fvd: Option<PathBuf>,
+    /// Overrides the manifest's level for generated context frames.
+    pub generated_level: Option<f32>,
 }
 
 /// Bootstrap resamples of clips for an FVD interval.
 const FVD_REPS: usize = 100;
 
-/// Which trained weights a policy runs with. WorldMem's greedy selection
-/// fills four full-rate slots, like memory retrieval, so it borrows those.
+/// Which trained weights a policy runs with (memory::variants).
 pub fn weights_for(kind: PolicyKind) -> &'static str {
-    match kind {
-        PolicyKind::Baseline => "baseline",
-        PolicyKind::NearestFramePacking => "nearest_frame_packing",
-        PolicyKind::MemoryRetrieval | PolicyKind::WorldMemGreedy => "memory_retrieval",
-        PolicyKind::WorldPack => "worldpack",
-    }
+    memory::variant(kind.name()).map_or(kind.name(), |v| v.weights)
 }
 
 /// What fixes a row's numbers; a saved row is reused only when it matches.
@@ -65,6 +60,11 @@ struct RowKey {
     max_frames: Option<usize>,
     /// The noise of a frame depends on which frames share its denoiser call.
     batch: usize,
+    #[serde(default)]
+    generated_level: Option<f32>,
+    /// How noise is seeded (rows saved before per-item seeds have none, and are recomputed).
+    #[serde(default)]
+    noise_seeding: String,
     feature_networks: [Option<String>; 3],
 }
 
@@ -98,7 +98,10 @@ pub fn run(o: &Options) -> Result<()> {
         let name = weights_for(kind);
         if !models.contains_key(name) {
             let dir = o.models.join(name);
-            let m = Model::load(&dir, o.runtime).with_context(|| format!("--models: the {} policy runs with {}", policy_name(kind), dir.display()))?;
+            let mut m = Model::load(&dir, o.runtime).with_context(|| format!("--models: the {} policy runs with {}", kind.name().to_string(), dir.display()))?;
+            if let Some(level) = o.generated_level {
+                m.set_generated_level(level).context("--generated-level")?;
+            }
             models.insert(name, m);
         }
     }
@@ -111,7 +114,7 @@ pub fn run(o: &Options) -> Result<()> {
     for &kind in &o.policies {
         let m = &models[weights_for(kind)];
         let sampler = Sampler::new(&m.manifest().diffusion, o.steps, o.method, 0.0)?;
-        rows.push((Row { name: policy_name(kind), predictor: Predictor::Model { model: m, policy: Policy::preset(kind), sampler } }, Some(m)));
+        rows.push((Row { name: kind.name().to_string(), predictor: Predictor::Model { model: m, policy: Policy::preset(kind), sampler } }, Some(m)));
     }
     // WorldPack fine-tuned with the newest frame kept, when that variant is there.
     let keep_last_dir = o.models.join("worldpack_keep_last");
@@ -121,7 +124,7 @@ pub fn run(o: &Options) -> Result<()> {
         None
     };
     if let Some(m) = &keep_last {
-        let policy = crate::probe::variant_policy("worldpack_keep_last").expect("a variant");
+        let policy = crate::probe::trained_policy(m);
         let sampler = Sampler::new(&m.manifest().diffusion, o.steps, o.method, 0.0)?;
         rows.push((Row { name: "worldpack_keep_last".into(), predictor: Predictor::Model { model: m, policy, sampler } }, Some(m)));
     }
@@ -143,6 +146,8 @@ pub fn run(o: &Options) -> Result<()> {
             method: format!("{:?}", o.method).to_lowercase(),
             max_frames: o.max_frames,
             batch: o.batch,
+            generated_level: o.generated_level,
+            noise_seeding: "per frame".into(),
             feature_networks: networks.clone(),
         };
         let path = rows_dir.join(format!("{}.json", row.name));
@@ -185,7 +190,7 @@ pub fn run(o: &Options) -> Result<()> {
         "models": o.models,
         "sampler": { "method": format!("{:?}", o.method).to_lowercase(), "steps": o.steps },
         "max_frames": o.max_frames,
-        "weights": o.policies.iter().map(|&k| (policy_name(k), weights_for(k))).collect::<BTreeMap<_, _>>(),
+        "weights": o.policies.iter().map(|&k| (k.name(), weights_for(k))).collect::<BTreeMap<_, _>>(),
         "trajectories": trajs.iter().map(|t| serde_json::json!({"dir": t.entry.dir, "task": t.entry.task, "range": t.entry.range,
             "returning_point": t.entry.returning_point, "frames": t.len()})).collect::<Vec<_>>(),
         "rows": results.iter().map(|(n, r)| serde_json::json!({"name": n, "wall_s": r.wall_s, "model": r.key.model})).collect::<Vec<_>>(),

@@ -218,6 +218,9 @@ enum Command {
         /// A video feature network in ONNX (e.g. I3D): adds FVD per (task, range) with a bootstrap interval.
         #[arg(long)]
         fvd: Option<PathBuf>,
+        /// The context noise level that marks generated frames, instead of the manifest's (models with that input only).
+        #[arg(long)]
+        generated_level: Option<f32>,
     },
     /// PSNR and SSIM of two PNG images, as JSON (the metrics `eval` uses).
     Compare { a: PathBuf, b: PathBuf },
@@ -226,13 +229,10 @@ enum Command {
         /// A folder written by `worldpack sim dataset` or `sim loopnav`.
         #[arg(long)]
         data: PathBuf,
-        /// Comma-separated policies: baseline, nearest_frame_packing, memory_retrieval, worldpack, worldmem_greedy.
+        /// Comma-separated policies by name (memory::variants): the presets baseline, nearest_frame_packing, memory_retrieval, worldpack, worldmem_greedy, and the options memory_retrieval_target, worldpack_target, worldpack_keep_last.
         #[arg(long, value_delimiter = ',', default_value = "baseline,nearest_frame_packing,memory_retrieval,worldpack",
-              value_parser = plan::parse_policy)]
-        policies: Vec<memory::PolicyKind>,
-        /// Always put the most recent frame in the first slot.
-        #[arg(long)]
-        keep_last: bool,
+              value_parser = plan::parse_variant)]
+        policies: Vec<&'static memory::Variant>,
         /// Also write memory-need.npy per trajectory: the share of each frame's view that only frames older than the 4 newest show (for `train --memory-focus`).
         #[arg(long)]
         memory_need: bool,
@@ -517,7 +517,7 @@ fn main() -> ExitCode {
             };
             report(study::run(&options), "study")
         }
-        Command::Eval { suite, models, policies, no_references, steps, method, max_frames, limit, batch, provider, threads, out, lpips, dreamsim, fvd } => {
+        Command::Eval { suite, models, policies, no_references, steps, method, max_frames, limit, batch, provider, threads, out, lpips, dreamsim, fvd, generated_level } => {
             let options = eval::Options {
                 suite,
                 models,
@@ -533,11 +533,12 @@ fn main() -> ExitCode {
                 lpips,
                 dreamsim,
                 fvd,
+                generated_level,
             };
             report(eval::run(&options), "eval")
         }
         Command::Compare { a, b } => report(eval::compare(&a, &b), "compare"),
-        Command::Plan { data, policies, keep_last, memory_need } => report(plan::run(&data, &policies, keep_last, memory_need), "plan"),
+        Command::Plan { data, policies, memory_need } => report(plan::run(&data, &policies, memory_need), "plan"),
         Command::Geometry { input } => {
             let text = match input {
                 Some(path) => std::fs::read_to_string(&path).map_err(|e| format!("cannot read {}: {e}", path.display())),

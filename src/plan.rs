@@ -6,7 +6,7 @@ use std::path::Path;
 use std::sync::atomic::{AtomicUsize, Ordering};
 
 use anyhow::{Context, Result, bail};
-use memory::{FrameMemory, Frustum, Intrinsics, MemoryFrame, Policy, PolicyKind, Pose};
+use memory::{FrameMemory, Frustum, Intrinsics, MemoryFrame, Policy, PolicyKind, Pose, Variant};
 use serde::Deserialize;
 
 use crate::sim::{bar, threads};
@@ -28,26 +28,23 @@ struct Meta {
     intrinsics: Intrinsics,
 }
 
-/// What a policy's plans are called: its name, `_keep_last` appended when
-/// the newest frame is pinned to the first slot.
-pub fn plan_name(policy: &Policy) -> String {
-    format!("{}{}", policy_name(policy.kind), if policy.keep_last { "_keep_last" } else { "" })
+/// The file a variant's plans go to inside each trajectory folder.
+pub fn plan_file(variant: &Variant) -> String {
+    format!("plan-{}.npy", variant.name)
 }
 
-/// The file a policy's plans go to inside each trajectory folder.
-pub fn plan_file(policy: &Policy) -> String {
-    format!("plan-{}.npy", plan_name(policy))
-}
-
+/// A preset's name as a command-line value (serve, eval).
 pub fn parse_policy(s: &str) -> Result<PolicyKind, String> {
-    serde_json::from_value(serde_json::Value::String(s.to_string())).map_err(|_| {
-        format!("unknown policy {s:?}; one of baseline, nearest_frame_packing, memory_retrieval, worldpack, worldmem_greedy")
-    })
+    let v = memory::variant(s).map_err(|e| e.to_string())?;
+    if memory::Policy::preset(v.kind) != v.policy() {
+        return Err(format!("{s:?} is an option of the {} policy, not a preset; give a preset here", v.kind.name()));
+    }
+    Ok(v.kind)
 }
 
-/// A policy's name as users write it (`worldpack`, `memory_retrieval`, ...).
-pub fn policy_name(kind: PolicyKind) -> String {
-    serde_json::to_value(kind).ok().and_then(|v| v.as_str().map(str::to_string)).unwrap_or_default()
+/// Any named variant as a command-line value (plan).
+pub fn parse_variant(s: &str) -> Result<&'static Variant, String> {
+    memory::variant(s).map_err(|e| e.to_string())
 }
 
 /// For every trajectory under `data` and every policy, writes
@@ -61,15 +58,15 @@ pub fn policy_name(kind: PolicyKind) -> String {
 /// newest show ([`eval::strata::memory_need`], every [`NEED_STRIDE`]-th pixel
 /// row and column), so training can draw more of the targets where memory
 /// beyond recency helps.
-pub fn run(data: &Path, kinds: &[PolicyKind], keep_last: bool, memory_need: bool) -> Result<()> {
+pub fn run(data: &Path, variants: &[&'static Variant], memory_need: bool) -> Result<()> {
     let index_path = data.join("index.json");
     let text = std::fs::read_to_string(&index_path)
         .with_context(|| format!("--data: no suite at {} (make one with `worldpack sim dataset`)", index_path.display()))?;
     let index: Index = serde_json::from_str(&text).with_context(|| format!("--data: {} is not a suite index", index_path.display()))?;
-    if kinds.is_empty() {
+    if variants.is_empty() {
         bail!("--policies: name at least one policy");
     }
-    let policies: Vec<Policy> = kinds.iter().map(|&k| Policy { keep_last, ..Policy::preset(k) }).collect();
+    let policies: Vec<Policy> = variants.iter().map(|v| v.policy()).collect();
     // The need reads depth and every field of the suite index; only load those when asked.
     let suite_entries = if memory_need { Some(eval::suite::entries(data).context("--data")?) } else { None };
 
@@ -85,7 +82,7 @@ pub fn run(data: &Path, kinds: &[PolicyKind], keep_last: bool, memory_need: bool
                         let Some(entry) = index.trajectories.get(i) else { break };
                         let dir = data.join(&entry.dir);
                         let need = suite_entries.as_ref().map(|all| write_memory_need(data, &all[i]));
-                        if let Err(e) = plan_trajectory(&dir, &policies).and(need.unwrap_or(Ok(()))) {
+                        if let Err(e) = plan_trajectory(&dir, variants).and(need.unwrap_or(Ok(()))) {
                             failed.push(e.context(dir.display().to_string()));
                         }
                         progress.set_message(entry.dir.clone());
@@ -108,19 +105,19 @@ pub fn run(data: &Path, kinds: &[PolicyKind], keep_last: bool, memory_need: bool
         .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
         .and_then(|v| v["policies"].as_array().cloned())
         .unwrap_or_default();
-    let names: Vec<String> = policies.iter().map(plan_name).collect();
-    let mut described: Vec<_> = previous.into_iter().filter(|e| !names.iter().any(|n| e["name"] == n.as_str())).collect();
-    described.extend(policies.iter().map(|p| {
+    let names: Vec<&str> = variants.iter().map(|v| v.name).collect();
+    let mut described: Vec<_> = previous.into_iter().filter(|e| !names.iter().any(|n| e["name"] == *n)).collect();
+    described.extend(variants.iter().zip(&policies).map(|(v, p)| {
         serde_json::json!({
-            "name": plan_name(p),
-            "file": plan_file(p),
+            "name": v.name,
+            "file": plan_file(v),
             "rates": p.packing.rates().collect::<Vec<_>>(),
             "policy": p,
         })
     }));
     let out = serde_json::json!({
         "format": PLANS_FORMAT,
-        "query": "the target frame's pose; candidates are all earlier frames of the trajectory",
+        "query": "each policy's own (policy.query): current = frame t-1's pose (Algorithm 1), target = frame t's; candidates are all earlier frames of the trajectory",
         "empty_slot": -1,
         "policies": described,
     });
@@ -140,7 +137,7 @@ fn write_memory_need(data: &Path, entry: &eval::suite::Entry) -> Result<()> {
     Ok(())
 }
 
-fn plan_trajectory(dir: &Path, policies: &[Policy]) -> Result<()> {
+fn plan_trajectory(dir: &Path, variants: &[&Variant]) -> Result<()> {
     let meta: Meta = serde_json::from_str(&std::fs::read_to_string(dir.join("meta.json"))?).context("meta.json")?;
     let (shape, poses) = world::npy::read::<f64>(&dir.join("poses.npy")).context("poses.npy")?;
     if shape.len() != 3 || shape[1..] != [4, 4] {
@@ -154,7 +151,8 @@ fn plan_trajectory(dir: &Path, policies: &[Policy]) -> Result<()> {
         })
         .collect::<Result<Vec<_>, _>>()
         .context("poses.npy")?;
-    for policy in policies {
+    for variant in variants {
+        let policy = &variant.policy();
         let slots = policy.packing.slots();
         let mut rows = vec![-1i32; frusta.len() * slots];
         let mut store = FrameMemory::new();
@@ -171,7 +169,7 @@ fn plan_trajectory(dir: &Path, policies: &[Policy]) -> Result<()> {
             }
             store.insert(MemoryFrame { id: t as u64, time: t as u64, frustum: frustum.clone() })?;
         }
-        world::npy::write(&dir.join(plan_file(policy)), &[frusta.len(), slots], &rows)?;
+        world::npy::write(&dir.join(plan_file(variant)), &[frusta.len(), slots], &rows)?;
     }
     Ok(())
 }

@@ -22,24 +22,20 @@ use crate::sim::bar;
 /// four in its order, then WorldPack fine-tuned with the newest frame kept.
 pub const VARIANTS: [&str; 5] = ["baseline", "nearest_frame_packing", "memory_retrieval", "worldpack", "worldpack_keep_last"];
 
-/// The context policy a variant folder was trained with.
+/// The context policy of a named variant (memory::variants).
 pub fn variant_policy(name: &str) -> Option<Policy> {
-    let preset = |k| Some(Policy::preset(k));
-    match name {
-        "baseline" => preset(PolicyKind::Baseline),
-        "nearest_frame_packing" => preset(PolicyKind::NearestFramePacking),
-        "memory_retrieval" => preset(PolicyKind::MemoryRetrieval),
-        "worldpack" => preset(PolicyKind::WorldPack),
-        "worldpack_keep_last" => Some(Policy { keep_last: true, ..Policy::preset(PolicyKind::WorldPack) }),
-        _ => None,
-    }
+    memory::variant(name).ok().map(|v| v.policy())
 }
 
-/// The policy a model was trained with (its manifest's `training.policy`),
-/// or the paper's WorldPack when the manifest does not say or names none
-/// of the variants.
+/// The policy a model was trained with: its manifest's `training.policy`,
+/// scoring against the view its plans were made with. Models exported
+/// before plans recorded their query were all trained with the target-pose
+/// query; a manifest that names no variant gets the paper's WorldPack.
 pub fn trained_policy(model: &Model) -> Policy {
-    model.manifest().training.as_ref().and_then(|t| variant_policy(&t.policy)).unwrap_or_else(|| Policy::preset(PolicyKind::WorldPack))
+    let Some(training) = model.manifest().training.as_ref() else { return Policy::preset(PolicyKind::WorldPack) };
+    let Some(mut policy) = variant_policy(&training.policy) else { return Policy::preset(PolicyKind::WorldPack) };
+    policy.query = training.plans_query.unwrap_or(memory::Query::Target);
+    policy
 }
 
 pub const SELECTION_CONTROL: &str = "worldpack weights, recency contexts";

@@ -48,7 +48,7 @@ fn demo_refuses_a_zero_range() {
 
 #[test]
 fn geometry_answers_a_select_request_with_token_counts() {
-    let request = r#"{"op": "select", "policy": {"kind": "worldpack"}, "latent": {"height": 28, "width": 28, "patch": 2},
+    let request = r#"{"op": "select", "policy": {"kind": "worldpack", "query": "target"}, "latent": {"height": 28, "width": 28, "patch": 2},
         "target": {"pose": {"pose5": {"x": 0, "y": 64, "z": 0, "pitch": 0, "yaw": 0, "convention": "minecraft", "unit": "degrees"}},
                    "intrinsics": {"hfov_deg": 90, "width": 64, "height": 64}},
         "frames": [
@@ -64,6 +64,12 @@ fn geometry_answers_a_select_request_with_token_counts() {
     assert_eq!(v["plan"]["slots"][1]["frame"]["overlap"], 0.0);
     assert_eq!(v["tokens"]["used"], 392);
     assert_eq!(v["tokens"]["capacity"], 844);
+    // Algorithm 1 (the preset) scores against the newest frame's view instead: that frame leads.
+    let (code, out, err) = worldpack(&["geometry"], &request.replace(r#", "query": "target""#, ""));
+    assert_eq!(code, 0, "{err}");
+    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(v["plan"]["slots"][0]["frame"]["id"], 2);
+    assert_eq!(v["plan"]["slots"][0]["frame"]["overlap"], 1.0);
 }
 
 #[test]

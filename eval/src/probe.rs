@@ -5,7 +5,7 @@
 
 use std::time::Instant;
 
-use memory::{ContextPlan, Estimator, FrameMemory, MemoryFrame, Packing, Policy, PolicyKind, Ranking, ScoreWeights};
+use memory::{ContextPlan, Estimator, FrameMemory, MemoryFrame, Packing, Policy, PolicyKind, Query, Ranking, ScoreWeights};
 use model::generate::frame_to_tensor;
 use model::pack::ContextFrame;
 use model::{Model, ModelError, Request, Sampler, Tensor};
@@ -50,6 +50,8 @@ pub fn best_overlap_policy() -> Policy {
         estimator: Estimator::Exact,
         weights: ScoreWeights { overlap: 1.0, recency: 0.0 },
         keep_last: false,
+        // The references copy or warp toward the frame to predict.
+        query: Query::Target,
     }
 }
 

@@ -222,6 +222,8 @@ impl FrameMemory {
     /// `previous` (the last plan for a nearby target) only speeds things up.
     pub fn select(&self, policy: &Policy, target: &Frustum, previous: Option<&ContextPlan>) -> (ContextPlan, SelectionStats) {
         let n = policy.packing.slots();
+        let newest = self.by_recency.last().map(|&s| &self.frames[s].frustum);
+        let target = policy.query_view(target, newest);
         match policy.ranking {
             Ranking::Score => self.select_by_score(policy, target, previous),
             Ranking::Recency => {

@@ -25,11 +25,13 @@ pub mod pose;
 pub mod rng;
 pub mod stability;
 pub mod workload;
+pub mod variants;
 
 pub use camera::Intrinsics;
 pub use error::InputError;
 pub use frustum::Frustum;
 pub use index::{FrameMemory, SelectionStats};
 pub use overlap::Estimator;
-pub use policy::{ContextPlan, LatentGrid, MemoryFrame, Packing, Policy, PolicyKind, PolicySpec, Ranking, ScoreWeights, select};
+pub use policy::{ContextPlan, LatentGrid, MemoryFrame, Packing, Policy, PolicyKind, PolicySpec, Query, Ranking, ScoreWeights, select};
 pub use pose::{AngleUnit, Pose, Pose5, Pose5Convention};
+pub use variants::{VARIANTS, Variant, variant};

@@ -162,6 +162,19 @@ pub enum PolicyKind {
     WorldMemGreedy,
 }
 
+/// Which view stored frames are scored against.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Query {
+    /// The current pose p_t, the newest stored frame's (the paper's Algorithm 1):
+    /// that frame has overlap 1 and age 0, so it always ranks first.
+    Current,
+    /// The pose of the frame about to be generated, p_{t+1} (WorldMem's and
+    /// LoopNav's choice): it sees where the camera is going, and may push
+    /// the newest frame out of the full-rate slots.
+    Target,
+}
+
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct Policy {
     pub kind: PolicyKind,
@@ -171,6 +184,7 @@ pub struct Policy {
     pub weights: ScoreWeights,
     /// Always put the most recent frame in the first slot.
     pub keep_last: bool,
+    pub query: Query,
 }
 
 impl Policy {
@@ -184,7 +198,21 @@ impl Policy {
                 (Ranking::GreedyCoverage, Packing::uncompressed(4), Estimator::WorldMem(Default::default()))
             }
         };
-        Policy { kind, ranking, packing, estimator, weights: ScoreWeights::default(), keep_last: false }
+        // The paper's scored policies follow Algorithm 1; recency needs no query, and WorldMem looks ahead.
+        let query = match kind {
+            PolicyKind::MemoryRetrieval | PolicyKind::WorldPack => Query::Current,
+            PolicyKind::Baseline | PolicyKind::NearestFramePacking | PolicyKind::WorldMemGreedy => Query::Target,
+        };
+        Policy { kind, ranking, packing, estimator, weights: ScoreWeights::default(), keep_last: false, query }
+    }
+
+    /// The view to score against: `target`, or the newest stored frame's
+    /// frustum for [`Query::Current`] (the target when nothing is stored).
+    pub fn query_view<'a>(&self, target: &'a Frustum, newest: Option<&'a Frustum>) -> &'a Frustum {
+        match (self.query, newest) {
+            (Query::Current, Some(f)) => f,
+            _ => target,
+        }
     }
 }
 
@@ -201,6 +229,8 @@ pub struct PolicySpec {
     pub weights: Option<ScoreWeights>,
     #[serde(default)]
     pub tiers: Option<Vec<Tier>>,
+    #[serde(default)]
+    pub query: Option<Query>,
 }
 
 impl PolicySpec {
@@ -217,6 +247,9 @@ impl PolicySpec {
         }
         if let Some(t) = self.tiers {
             p.packing = Packing::new(t)?;
+        }
+        if let Some(q) = self.query {
+            p.query = q;
         }
         Ok(p)
     }
@@ -303,8 +336,9 @@ impl LatentGrid {
 }
 
 /// Selects by brute force: every stored frame is considered. The target is
-/// the frustum of the frame being generated (DESIGN §3). This is the
-/// reference that the indexed selection in [`crate::index`] must match.
+/// the frustum of the frame being generated; the policy's [`Query`] decides
+/// whether frames are scored against it or against the newest stored frame.
+/// This is the reference that the indexed selection in [`crate::index`] must match.
 pub fn select(policy: &Policy, target: &Frustum, frames: &[MemoryFrame]) -> ContextPlan {
     let refs: Vec<&MemoryFrame> = frames.iter().collect();
     select_among(policy, target, &refs)
@@ -315,6 +349,8 @@ pub fn select_among(policy: &Policy, target: &Frustum, frames: &[&MemoryFrame]) 
     let Some(t_now) = frames.iter().map(|f| f.time).max() else {
         return ContextPlan::from_ranked(&policy.packing, &[]);
     };
+    let newest = frames.iter().max_by_key(|f| (f.time, f.id)).map(|f| &f.frustum);
+    let target = policy.query_view(target, newest);
     let age_of = |f: &MemoryFrame| age(f.time, t_now);
     let n = policy.packing.slots();
     let by_recency = |a: &&MemoryFrame, b: &&MemoryFrame| b.time.cmp(&a.time).then(b.id.cmp(&a.id));

@@ -3,7 +3,7 @@
 use memory::overlap::exact_overlap;
 use memory::policy::{PolicySpec, Tier};
 use memory::{
-    AngleUnit, Frustum, Intrinsics, LatentGrid, MemoryFrame, Packing, Policy, PolicyKind, Pose, Pose5, Pose5Convention,
+    AngleUnit, Frustum, Intrinsics, LatentGrid, MemoryFrame, Packing, Policy, PolicyKind, Pose, Pose5, Pose5Convention, Query,
     select,
 };
 
@@ -37,6 +37,11 @@ fn out_and_back() -> Vec<MemoryFrame> {
         frames.push(MemoryFrame { id: t, time: t, frustum: view(0.0, (79 - t) as f64, 180.0) });
     }
     frames
+}
+
+/// A preset scoring against the frame to generate instead of the current view.
+fn looking_ahead(kind: PolicyKind) -> Policy {
+    Policy { query: Query::Target, ..Policy::preset(kind) }
 }
 
 fn ids(plan: &memory::ContextPlan) -> Vec<u64> {
@@ -74,9 +79,9 @@ fn retrieval_policies_bring_back_the_frames_that_saw_the_target_view() {
     let frames = out_and_back();
     // Back at the start, facing south again: the outbound frames near z = 0 saw this.
     let target = view(0.0, 0.0, 0.0);
-    let mr = select(&Policy::preset(PolicyKind::MemoryRetrieval), &target, &frames);
+    let mr = select(&looking_ahead(PolicyKind::MemoryRetrieval), &target, &frames);
     assert_eq!(ids(&mr), vec![0, 1, 2, 3], "{mr:?}");
-    let wp = select(&Policy::preset(PolicyKind::WorldPack), &target, &frames);
+    let wp = select(&looking_ahead(PolicyKind::WorldPack), &target, &frames);
     assert_eq!(&ids(&wp)[..4], &[0, 1, 2, 3]);
     assert_eq!(wp.slots.len(), 22);
     // The newest frame stands on the target's spot facing the other way: it
@@ -91,6 +96,28 @@ fn retrieval_policies_bring_back_the_frames_that_saw_the_target_view() {
     }
     let scores: Vec<f64> = wp.selected().map(|(_, f)| f.score).collect();
     assert!(scores.windows(2).all(|w| w[0] >= w[1]));
+}
+
+#[test]
+fn algorithm_1_scores_against_the_current_view() {
+    // The paper's Algorithm 1: frames 0..t scored against p_t, the newest
+    // frame's pose. That frame has overlap 1 and age 0, so it always leads;
+    // the rest are the frames that saw the current view.
+    let frames = out_and_back();
+    let target = view(0.0, 0.0, 0.0);
+    for kind in [PolicyKind::MemoryRetrieval, PolicyKind::WorldPack] {
+        let policy = Policy::preset(kind);
+        assert_eq!(policy.query, Query::Current, "{kind:?}");
+        let plan = select(&policy, &target, &frames);
+        let first = plan.selected().next().unwrap().1;
+        assert_eq!((first.id, first.overlap, first.score), (79, 1.0, 1.0), "{kind:?}");
+        // Next: the way back's frames (facing north as frame 79 does), not the outbound start.
+        assert_eq!(&ids(&plan)[1..4], &[78, 77, 76], "{kind:?}");
+    }
+    // The same query through a spec, and the look-ahead query as an override.
+    let spec = |json: &str| serde_json::from_str::<PolicySpec>(json).unwrap().into_policy().unwrap();
+    assert_eq!(spec(r#"{"kind": "worldpack"}"#).query, Query::Current);
+    assert_eq!(ids(&select(&spec(r#"{"kind": "worldpack", "query": "target"}"#), &target, &frames))[0], 0);
 }
 
 #[test]
@@ -110,7 +137,7 @@ fn ties_go_to_the_more_recent_frame_then_the_larger_id() {
 fn keep_last_pins_the_most_recent_frame_first() {
     let frames = out_and_back();
     let target = view(0.0, 0.0, 0.0);
-    let mut policy = Policy::preset(PolicyKind::WorldPack);
+    let mut policy = looking_ahead(PolicyKind::WorldPack);
     policy.keep_last = true;
     let plan = select(&policy, &target, &frames);
     assert_eq!(ids(&plan)[0], 79);
@@ -133,7 +160,7 @@ fn greedy_coverage_prefers_a_new_region_over_a_duplicate() {
     assert!(picked.contains(&2) && picked.len() == 2, "{picked:?}");
     // Plain score ranking over the same views happily takes a duplicate; make
     // the duplicates clearly better-scoring by tilting the target toward them.
-    let mut by_score = Policy::preset(PolicyKind::MemoryRetrieval);
+    let mut by_score = looking_ahead(PolicyKind::MemoryRetrieval);
     by_score.packing = Packing::uncompressed(2);
     let tilted = view(0.0, 0.0, 30.0);
     assert_eq!(ids(&select(&by_score, &tilted, &frames)), vec![1, 0]);
@@ -197,7 +224,7 @@ fn each_estimator_can_drive_worldpack() {
     let frames = out_and_back();
     let target = view(0.0, 0.0, 0.0);
     let first_pick = |estimator: &str| {
-        let json = format!(r#"{{"kind": "worldpack", "estimator": {estimator}}}"#);
+        let json = format!(r#"{{"kind": "worldpack", "query": "target", "estimator": {estimator}}}"#);
         let policy = serde_json::from_str::<PolicySpec>(&json).unwrap().into_policy().unwrap();
         ids(&select(&policy, &target, &frames))[0]
     };

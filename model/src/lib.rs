@@ -55,6 +55,21 @@ impl Model {
         &self.manifest
     }
 
+    /// Marks generated context frames with `level` instead of the manifest's
+    /// level (to choose it on a validation suite).
+    pub fn set_generated_level(&mut self, level: f32) -> Result<(), ModelError> {
+        if !(level.is_finite() && level >= 0.0) {
+            return Err(ModelError::input("generated_level", format!("must be a finite level ≥ 0, got {level}")));
+        }
+        match &mut self.manifest.denoiser.context_noise {
+            Some(spec) => {
+                spec.generated_level = level;
+                Ok(())
+            }
+            None => Err(ModelError::input("generated_level", format!("model {} takes no context noise levels", self.dir.display()))),
+        }
+    }
+
     /// The execution provider that runs the denoiser.
     pub fn provider(&self) -> &str {
         self.backend.provider()

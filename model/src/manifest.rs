@@ -33,6 +33,10 @@ pub struct Manifest {
 pub struct TrainingSpec {
     /// The plans the weights were trained on (`worldpack`, `worldpack_keep_last`, ...).
     pub policy: String,
+    /// Which view those plans scored against; absent in models exported
+    /// before plans recorded it (they all used the target pose).
+    #[serde(default)]
+    pub plans_query: Option<memory::Query>,
 }
 
 #[derive(Clone, Debug, Deserialize)]

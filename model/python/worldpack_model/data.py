@@ -89,6 +89,8 @@ class PlannedLatents:
         if entry is None:
             raise SystemExit(f"--policy: {root}/plans.json has no plans for {policy!r}")
         rates = entry["rates"]
+        # Which view the plans scored against (plans written before this was recorded used the target pose).
+        self.plans_query = entry.get("policy", {}).get("query", "target")
         expected = [r for r, c in zip(layout.rates, layout.counts) for _ in range(c)]
         if rates != expected:
             raise SystemExit(f"--policy: plans for {policy!r} have slot rates {rates}, layout {layout.name} needs {expected}")

@@ -356,6 +356,8 @@ def export(run: Path, policy: str, layout_names: list[str], data: Path, out: Pat
             "policy": policy, "steps": ckpt["step"],
             "init_from": ckpt.get("init_from"), "memory_focus": ckpt.get("memory_focus", 0.0),
             "recipe": ckpt.get("recipe", {}),
+            # Absent in checkpoints from before plans recorded it: those plans used the target pose.
+            "plans_query": ckpt.get("plans_query", "target"),
             "autoencoder_steps": last("autoencoder").get("step"),
             "final_loss": last(f"cdit-{policy}").get("loss"),
             "samples_per_s": last(f"cdit-{policy}").get("samples_per_s"),

@@ -217,7 +217,8 @@ def train_cdit(data: Path, run: Path, policy: str, steps: int, batch: int, lr: f
     bar = tqdm(total=steps, initial=step, desc=f"cdit {policy}", unit="step")
     started, seen = time.time(), 0
     checkpoint = lambda: save(ckpt, model=model.state_dict(), ema=ema.state_dict(), opt=opt.state_dict(), step=step,
-                              policy=policy, memory_focus=memory_focus, init_from=origin, recipe=recipe.to_json())
+                              policy=policy, memory_focus=memory_focus, init_from=origin, recipe=recipe.to_json(),
+                              plans_query=source.plans_query)
     while step < steps and time.time() < deadline:
         x0, action, rel_time, groups = augment(source.batch(rng, batch), ema)
         t = torch.randint(0, cfg.diffusion.timesteps, (batch,), device=dev)

@@ -1,0 +1,86 @@
+//! Every named context policy in one table: the paper's presets, the
+//! look-ahead (target-pose) options of the scored ones, and the trained
+//! variants' weights. Plans, training, evaluation and reports take names and
+//! labels from here, so a new policy is one row.
+
+use crate::error::InputError;
+use crate::policy::{Policy, PolicyKind, Query};
+
+#[derive(Debug)]
+pub struct Variant {
+    /// As users and files write it (`worldpack`, `plan-worldpack.npy`, `fixtures/variants/worldpack`).
+    pub name: &'static str,
+    /// As tables and charts show it.
+    pub label: &'static str,
+    pub kind: PolicyKind,
+    pub query: Query,
+    pub keep_last: bool,
+    /// The trained weights it runs with: a variant folder's name.
+    pub weights: &'static str,
+}
+
+impl Variant {
+    pub fn policy(&self) -> Policy {
+        Policy { query: self.query, keep_last: self.keep_last, ..Policy::preset(self.kind) }
+    }
+}
+
+const fn row(name: &'static str, label: &'static str, kind: PolicyKind, query: Query, keep_last: bool, weights: &'static str) -> Variant {
+    Variant { name, label, kind, query, keep_last, weights }
+}
+
+/// In the paper's order, then WorldMem's, then the look-ahead options.
+pub const VARIANTS: &[Variant] = &[
+    row("baseline", "Baseline (4 newest)", PolicyKind::Baseline, Query::Target, false, "baseline"),
+    row("nearest_frame_packing", "Nearest frame packing", PolicyKind::NearestFramePacking, Query::Target, false, "nearest_frame_packing"),
+    row("memory_retrieval", "Memory retrieval", PolicyKind::MemoryRetrieval, Query::Current, false, "memory_retrieval"),
+    row("worldpack", "WorldPack", PolicyKind::WorldPack, Query::Current, false, "worldpack"),
+    // WorldMem's greedy selection fills four full-rate slots, like memory retrieval, so it borrows those weights.
+    row("worldmem_greedy", "WorldMem greedy", PolicyKind::WorldMemGreedy, Query::Target, false, "memory_retrieval"),
+    row("memory_retrieval_target", "Memory retrieval, target-pose query", PolicyKind::MemoryRetrieval, Query::Target, false, "memory_retrieval_target"),
+    row("worldpack_target", "WorldPack, target-pose query", PolicyKind::WorldPack, Query::Target, false, "worldpack_target"),
+    // Session 6's fix for the target-pose query dropping the newest frame;
+    // Algorithm 1 keeps that frame by itself, so this stays only for the models trained so.
+    row("worldpack_keep_last", "WorldPack, target-pose query, newest kept", PolicyKind::WorldPack, Query::Target, true, "worldpack_keep_last"),
+];
+
+/// The variant called `name`; the error lists the names.
+pub fn variant(name: &str) -> Result<&'static Variant, InputError> {
+    VARIANTS.iter().find(|v| v.name == name).ok_or_else(|| {
+        let names: Vec<&str> = VARIANTS.iter().map(|v| v.name).collect();
+        InputError::invalid("policy", format!("unknown policy {name:?}; one of {}", names.join(", ")))
+    })
+}
+
+/// The name of the variant `policy` is (same kind, query and pinning), if any.
+pub fn name_of(policy: &Policy) -> Option<&'static str> {
+    VARIANTS.iter().find(|v| v.kind == policy.kind && v.query == policy.query && v.keep_last == policy.keep_last).map(|v| v.name)
+}
+
+impl PolicyKind {
+    /// The preset's name (`worldpack`, `memory_retrieval`, ...).
+    pub fn name(self) -> &'static str {
+        name_of(&Policy::preset(self)).expect("every preset is a row of VARIANTS")
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn names_are_unique_and_round_trip() {
+        for (i, v) in VARIANTS.iter().enumerate() {
+            assert!(VARIANTS[..i].iter().all(|w| w.name != v.name), "{} twice", v.name);
+            assert_eq!(name_of(&v.policy()), Some(v.name));
+            assert_eq!(variant(v.name).unwrap().name, v.name);
+        }
+        for kind in [PolicyKind::Baseline, PolicyKind::NearestFramePacking, PolicyKind::MemoryRetrieval, PolicyKind::WorldPack, PolicyKind::WorldMemGreedy] {
+            // The serde name users write in a policy spec is the registry's.
+            assert_eq!(serde_json::to_value(kind).unwrap(), kind.name());
+        }
+        let err = variant("bogus").unwrap_err();
+        assert_eq!(err.field(), "policy");
+        assert!(err.to_string().contains("worldpack_target"), "{err}");
+    }
+}
