@@ -31,7 +31,7 @@ def suite(tmp_path_factory):
     root = tmp_path_factory.mktemp("focus")
     data, latents = root / "data", root / "latents"
     run("sim", "loopnav", "--per-cell", "2", "--tasks", "aba", "--ranges", "5", "--seed", "3", "--out", str(data))
-    run("plan", "--data", str(data), "--policies", "worldpack", "--keep-last", "--memory-need")
+    run("plan", "--data", str(data), "--policies", "worldpack_keep_last", "--memory-need")
     latents.mkdir()
     rng = np.random.default_rng(0)
     for d in wdata.trajectories(data):
