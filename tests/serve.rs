@@ -106,7 +106,13 @@ fn a_synthetic_session_steps_observes_selects_and_reads_back() {
         assert!(used.iter().all(|&f| f < i), "only earlier frames are context");
         assert_ne!(r["pose"], last_pose, "the motion model moved the camera");
         last_pose = r["pose"].clone();
+        let psnr = r["truth"]["psnr_db"].as_f64().unwrap();
+        assert!(psnr.is_finite() && psnr > 5.0, "a synthetic step scores itself against the world: {}", r["truth"]);
+        assert_eq!(r["truth"]["image"], format!("/v1/sessions/{id}/frames/{i}/truth"));
     }
+    // The first frame is the world's own render, so its truth is the same picture.
+    assert_eq!(s.bytes(&format!("/v1/sessions/{id}/frames/0/truth")), s.bytes(&format!("/v1/sessions/{id}/frames/0/image")));
+    assert_ne!(s.bytes(&format!("/v1/sessions/{id}/frames/7/truth")), s.bytes(&format!("/v1/sessions/{id}/frames/7/image")));
     // Observe a real frame (the first one again), then ask what a pose would use.
     let image = B64.encode(s.bytes(&format!("/v1/sessions/{id}/frames/0/image")));
     let (code, frame0) = s.get(&format!("/v1/sessions/{id}/frames/0"));
@@ -167,6 +173,8 @@ fn without_a_model_the_server_is_a_memory_store() {
     let index = r["index"].as_u64().unwrap();
     assert_eq!(s.bytes(&format!("/v1/sessions/{id}/frames/{index}/depth")), depth);
     assert_eq!(s.get(&format!("/v1/sessions/{id}/frames/1/depth")).1["error"]["field"], "depth");
+    let (code, r) = s.get(&format!("/v1/sessions/{id}/frames/1/truth"));
+    assert_eq!((code, r["error"]["field"].as_str()), (404, Some("truth")), "real frames have no truth here: {r}");
     let (code, r) = s.post(&format!("/v1/sessions/{id}/observe"), &json!({ "image_png": png, "pose": c2w([0.0; 3]), "depth_png16": png }));
     assert_eq!((code, r["error"]["field"].as_str()), (400, Some("depth_png16")), "an RGB image is not a depth map: {r}");
     let (code, r) = s.post(&format!("/v1/sessions/{id}/step"), &json!({ "action": { "forward": true } }));

@@ -35,6 +35,15 @@ pub struct StepOutcome {
     pub layout: String,
     pub exact_evaluations: usize,
     pub timings_ms: [f64; 4], // select, sample, decode, store
+    /// In a synthetic session: how close the frame is to what the world shows there.
+    pub truth: Option<TruthScore>,
+}
+
+/// A generated frame against the synthetic world's true frame at its pose.
+#[derive(Clone, Copy, Debug)]
+pub struct TruthScore {
+    pub psnr_db: f64,
+    pub ssim: f64,
 }
 
 impl Engine {
@@ -114,8 +123,12 @@ impl Engine {
         let lookup = |_: usize, id: u64| frames.get(id as usize).map(|f| ContextFrame { latent: &f.latent, time: f.time, pose: &f.pose, generated: f.generated });
         let mut prediction = m.predict(&s.policy.packing, &[request], &lookup, sampler)?;
         let predicted = prediction.frames.remove(0);
-        let t2 = Instant::now();
         let img = &m.manifest().image;
+        let truth = self.truth_at(s, &pose)?.map(|t| TruthScore {
+            psnr_db: eval::metrics::psnr(&predicted.rgb, &t),
+            ssim: eval::metrics::ssim(&predicted.rgb, &t, img.width, img.height).unwrap_or(f64::NAN),
+        });
+        let t2 = Instant::now();
         let png = encode_png(&predicted.rgb, img.width as u32, img.height as u32);
         let decode_ms = prediction.decode_ms + ms(t2);
         let t3 = Instant::now();
@@ -134,7 +147,16 @@ impl Engine {
             layout: prediction.layout,
             exact_evaluations: stats.overlap_evaluations,
             timings_ms: [select_ms, prediction.sample_ms, decode_ms, store_ms],
+            truth,
         })
+    }
+
+    /// What a synthetic session's world shows at `pose` (RGB at the session's
+    /// camera); `None` for sessions of real frames, which have no truth here.
+    pub fn truth_at(&self, s: &Session, pose: &Pose) -> Result<Option<Vec<u8>>, ApiError> {
+        let Some(world) = &s.world else { return Ok(None) };
+        let k = s.intrinsics();
+        Ok(Some(render(world, pose, k, &RenderSettings::default()).rgb))
     }
 
     /// Appends a caller's frame (encoded when a model is loaded), with its

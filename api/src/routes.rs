@@ -48,6 +48,7 @@ pub fn router(state: Arc<AppState>) -> Router {
         .route("/v1/sessions/{id}/frames/{index}", get(frame))
         .route("/v1/sessions/{id}/frames/{index}/image", get(frame_image))
         .route("/v1/sessions/{id}/frames/{index}/depth", get(frame_depth))
+        .route("/v1/sessions/{id}/frames/{index}/truth", get(frame_truth))
         .fallback(|| async { ApiError::not_found("path", "no such endpoint; see /docs or docs/api.md") })
         .with_state(state)
 }
@@ -314,6 +315,9 @@ async fn step(State(st): St, id: Result<Path<u64>, PathRejection>, headers: Head
             "image_png": B64.encode(&o.png), "steps": sampler.len(), "provider": st2.engine.model.as_ref().map(|m| m.provider()),
             "selection": { "plan": plan_json(&s.policy, &o.plan), "layout": o.layout, "exact_evaluations": o.exact_evaluations },
             "timings_ms": { "select": select, "sample": sample, "decode": decode, "store": store },
+            "truth": o.truth.map(|t| json!({
+                "psnr_db": t.psnr_db, "ssim": t.ssim, "image": format!("/v1/sessions/{}/frames/{}/truth", s.id, o.index),
+            })),
         }))
     })
     .await?;
@@ -438,12 +442,31 @@ async fn frame_depth(State(st): St, p: Result<Path<(u64, u64)>, PathRejection>) 
     Ok(([(header::CONTENT_TYPE, "image/png")], f.depth_png16).into_response())
 }
 
+/// The synthetic world's true frame at a stored frame's pose, so a user can
+/// see how far generated frames drift; 404 for sessions of real frames.
+async fn frame_truth(State(st): St, p: Result<Path<(u64, u64)>, PathRejection>) -> Res<Response> {
+    let (id, _, f) = stored_frame(&st, p).await?;
+    let pose = crate::session::pose_of(&f.meta)?;
+    let slot = slot(&st, id)?;
+    let s = lock(&st, &slot).await?;
+    let st2 = st.clone();
+    let png = blocking(move || {
+        let rgb = st2.engine.truth_at(&s, &pose)?.ok_or_else(|| {
+            ApiError::not_found("truth", format!("session {id} is not synthetic: only a synthetic world has a true frame"))
+        })?;
+        let k = s.intrinsics();
+        Ok(crate::engine::encode_png(&rgb, k.width, k.height))
+    })
+    .await?;
+    Ok(([(header::CONTENT_TYPE, "image/png")], png).into_response())
+}
+
 #[cfg(test)]
 mod tests {
     #[test]
     fn the_openapi_document_is_json_with_every_endpoint() {
         let doc: serde_json::Value = serde_json::from_str(super::OPENAPI).unwrap();
         assert_eq!(doc["openapi"], "3.1.0");
-        assert_eq!(doc["paths"].as_object().unwrap().len(), 10);
+        assert_eq!(doc["paths"].as_object().unwrap().len(), 11);
     }
 }
