@@ -1,0 +1,174 @@
+"""An out-and-back walk through the REST API, scored against the synthetic world.
+
+For each row (a model folder and a policy) this starts `worldpack serve` on a
+free local port with its own store, opens a synthetic session, looks around
+(12 turns of 30 degrees), walks 20 steps out, turns back (6 turns of 30
+degrees) and walks 20 steps back along the same path. Every step answer
+carries the PSNR/SSIM of the generated frame against the world's true frame
+at its pose; the script keeps them, fetches frames for a picture, and writes:
+
+  <out>.json   per-step PSNR/SSIM per row, with the phase of each step
+  <out>.png    the PSNR curves, phases marked
+  <out>-strip.png  every 4th frame of the way back: truth, then each row
+
+    .venv/bin/python scripts/rest_walk.py --out docs/results/rest_walk \\
+        --row worldpack=fixtures/variants/worldpack:worldpack --row baseline=fixtures/variants/baseline:baseline
+
+Standard library, NumPy and OpenCV only (the test venv)."""
+
+from __future__ import annotations
+
+import argparse
+import base64
+import json
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+import urllib.error
+import urllib.request
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+LOOK, OUT, TURN, BACK = 12, 20, 6, 20
+
+
+def walk() -> list[tuple[str, dict]]:
+    """The actions, each with its phase."""
+    steps = [("look around", {"yaw_deg": 30.0})] * LOOK
+    steps += [("out", {"forward": True})] * OUT
+    steps += [("turn back", {"yaw_deg": 30.0})] * TURN
+    steps += [("back", {"forward": True})] * BACK
+    return steps
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def call(url: str, body: dict | None = None) -> dict | bytes:
+    data = None if body is None else json.dumps(body).encode()
+    req = urllib.request.Request(url, data=data, headers={"content-type": "application/json"} if data else {})
+    try:
+        with urllib.request.urlopen(req, timeout=120) as r:
+            raw = r.read()
+            return json.loads(raw) if r.headers.get("content-type", "").startswith("application/json") else raw
+    except urllib.error.HTTPError as e:
+        sys.exit(f"{url}: HTTP {e.code}: {e.read().decode(errors='replace')}")
+
+
+def png_to_rgb(png: bytes) -> np.ndarray:
+    return cv2.cvtColor(cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
+
+
+def run_row(binary: str, model: str, policy: str, seed: int, steps: int, method: str) -> dict:
+    port = free_port()
+    with tempfile.TemporaryDirectory() as tmp:
+        server = subprocess.Popen([binary, "serve", "--model", model, "--store", f"{tmp}/walk.redb", "--addr", f"127.0.0.1:{port}",
+                                   "--policy", policy, "--steps", str(steps), "--method", method],
+                                  stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+        base = f"http://127.0.0.1:{port}"
+        try:
+            for _ in range(600):
+                try:
+                    call(f"{base}/v1/health")
+                    break
+                except (urllib.error.URLError, ConnectionError):
+                    if server.poll() is not None:
+                        sys.exit(f"worldpack serve --model {model} stopped: {server.stderr.read().decode()}")
+                    time.sleep(0.1)
+            session = call(f"{base}/v1/sessions", {"synthetic": {"seed": seed}})["session"]
+            rows = []
+            for phase, action in walk():
+                r = call(f"{base}/v1/sessions/{session}/step", {"action": action, "seed": len(rows) + 1})
+                truth = r["truth"]
+                rows.append({"index": r["index"], "phase": phase, "psnr_db": truth["psnr_db"], "ssim": truth["ssim"]})
+            back = [r["index"] for r in rows if r["phase"] == "back"][::4]
+            frames = {i: png_to_rgb(call(f"{base}/v1/sessions/{session}/frames/{i}/image")) for i in back}
+            truths = {i: png_to_rgb(call(f"{base}/v1/sessions/{session}/frames/{i}/truth")) for i in back}
+            return {"model": model, "policy": policy, "steps": rows, "frames": frames, "truths": truths}
+        finally:
+            server.terminate()
+            server.wait(timeout=30)
+
+
+def curve(results: dict, path: Path) -> None:
+    w, h, pad = 720, 300, 40
+    img = np.full((h, w, 3), 255, np.uint8)
+    n = len(next(iter(results.values()))["steps"])
+    values = [s["psnr_db"] for r in results.values() for s in r["steps"]]
+    lo, hi = np.floor(min(values)) - 1, np.ceil(max(values)) + 1
+    x = lambda i: int(pad + (w - 2 * pad) * i / max(n - 1, 1))
+    y = lambda v: int(h - pad - (h - 2 * pad) * (v - lo) / (hi - lo))
+    start = 0
+    for phase, length in [("look around", LOOK), ("out", OUT), ("turn back", TURN), ("back", BACK)]:
+        cv2.line(img, (x(start), pad), (x(start), h - pad), (200, 200, 200), 1)
+        cv2.putText(img, phase, (x(start) + 3, pad - 8), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (90, 90, 90), 1, cv2.LINE_AA)
+        start += length
+    for v in np.arange(lo, hi + 0.1, 2):
+        cv2.putText(img, f"{v:.0f}", (4, y(v) + 4), cv2.FONT_HERSHEY_SIMPLEX, 0.35, (90, 90, 90), 1, cv2.LINE_AA)
+    colours = [(31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40)]
+    for k, (name, r) in enumerate(results.items()):
+        c = colours[k % len(colours)][::-1]
+        pts = np.array([(x(i), y(s["psnr_db"])) for i, s in enumerate(r["steps"])], np.int32)
+        cv2.polylines(img, [pts], False, c, 2, cv2.LINE_AA)
+        cv2.putText(img, name, (w - 170, pad + 16 * (k + 1)), cv2.FONT_HERSHEY_SIMPLEX, 0.45, c, 1, cv2.LINE_AA)
+    cv2.putText(img, "PSNR (dB) against the true frame, per REST step", (pad, h - 10), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1, cv2.LINE_AA)
+    cv2.imwrite(str(path), img)
+
+
+def strip(results: dict, path: Path, scale: int = 2) -> None:
+    first = next(iter(results.values()))
+    indices = sorted(first["truths"])
+    rows = [("truth", [first["truths"][i] for i in indices])] + [(n, [r["frames"][i] for i in indices]) for n, r in results.items()]
+    label_w = 90
+    tiles = []
+    for name, images in rows:
+        line = np.concatenate([cv2.resize(im, None, fx=scale, fy=scale, interpolation=cv2.INTER_NEAREST) for im in images], axis=1)
+        label = np.full((line.shape[0], label_w, 3), 255, np.uint8)
+        cv2.putText(label, name[:11], (4, line.shape[0] // 2), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 0, 0), 1, cv2.LINE_AA)
+        tiles.append(np.concatenate([label, line], axis=1))
+    cv2.imwrite(str(path), cv2.cvtColor(np.concatenate(tiles, axis=0), cv2.COLOR_RGB2BGR))
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--row", action="append", required=True, help="NAME=MODEL_FOLDER:POLICY (repeatable)")
+    ap.add_argument("--bin", default="target/release/worldpack")
+    ap.add_argument("--seed", type=int, default=3)
+    ap.add_argument("--steps", type=int, default=10, help="sampler steps per frame")
+    ap.add_argument("--method", default="ddim")
+    ap.add_argument("--out", type=Path, required=True, help="path prefix for .json, .png and -strip.png")
+    a = ap.parse_args()
+    results = {}
+    for spec in a.row:
+        name, _, rest = spec.partition("=")
+        model, _, policy = rest.rpartition(":")
+        if not (name and model and policy):
+            sys.exit(f"--row {spec!r}: expected NAME=MODEL_FOLDER:POLICY")
+        print(f"{name}: {model} with {policy}", flush=True)
+        results[name] = run_row(a.bin, model, policy, a.seed, a.steps, a.method)
+    a.out.parent.mkdir(parents=True, exist_ok=True)
+    summary = {}
+    for name, r in results.items():
+        by_phase = {}
+        for s in r["steps"]:
+            by_phase.setdefault(s["phase"], []).append(s["psnr_db"])
+        summary[name] = {p: round(float(np.mean(v)), 2) for p, v in by_phase.items()}
+        print(f"{name:>12}: " + ", ".join(f"{p} {v:.2f} dB" for p, v in summary[name].items()))
+    record = {"command": " ".join(sys.argv), "seed": a.seed, "sampler": f"{a.method}, {a.steps} steps",
+              "mean_psnr_db_by_phase": summary,
+              "rows": {n: {k: v for k, v in r.items() if k not in ("frames", "truths")} for n, r in results.items()}}
+    a.out.with_suffix(".json").write_text(json.dumps(record, indent=1))
+    curve(results, a.out.with_suffix(".png"))
+    strip(results, Path(f"{a.out}-strip.png"))
+    print(f"wrote {a.out}.json, {a.out}.png, {a.out}-strip.png")
+
+
+if __name__ == "__main__":
+    main()
