@@ -14,29 +14,58 @@ use eval::rollout::{FvdEstimate, Scorer, clip_fvd, rollout, rollout_frames};
 use eval::stats::mean_std;
 use eval::suite::Trajectory;
 use memory::{Policy, PolicyKind};
-use model::{Method, Model, RuntimeOptions, Sampler};
+use model::{Model, Sampler};
 use serde::{Deserialize, Serialize};
 
 use crate::digest::model_key;
+use crate::cli::{Runtime, count, parse_method};
 use crate::sim::bar;
 
+#[derive(clap::Args)]
 pub struct Options {
+    /// A suite from `worldpack sim loopnav` (test seeds).
+    #[arg(long)]
     pub suite: PathBuf,
+    /// A folder of variant model folders (baseline/, nearest_frame_packing/, memory_retrieval/, worldpack/).
+    #[arg(long, default_value = "fixtures/variants")]
     pub models: PathBuf,
-    pub policies: Vec<PolicyKind>,
-    pub references: bool,
+    /// Comma-separated policies; worldmem_greedy runs with the memory_retrieval weights.
+    #[arg(long, value_delimiter = ',', value_parser = crate::plan::parse_policy,
+          default_value = "baseline,nearest_frame_packing,memory_retrieval,worldpack,worldmem_greedy")]
+    pub policies: Vec<memory::PolicyKind>,
+    /// Leave out the copy and reproject references.
+    #[arg(long)]
+    pub no_references: bool,
+    /// Sampler steps per generated frame.
+    #[arg(long, default_value_t = 10, value_parser = count(1, 1000))]
     pub steps: usize,
-    pub method: Method,
+    #[arg(long, default_value = "ddim", value_parser = parse_method)]
+    pub method: model::Method,
+    /// Generate at most this many frames of each return leg.
+    #[arg(long)]
     pub max_frames: Option<usize>,
+    /// Only the first n trajectories of the suite.
+    #[arg(long)]
     pub limit: Option<usize>,
+    /// Trajectories generated together per denoiser call.
+    #[arg(long, default_value_t = 32, value_parser = count(1, 1024))]
     pub batch: usize,
-    pub runtime: RuntimeOptions,
+    #[command(flatten)]
+    pub runtime: Runtime,
+    /// Results folder: rows/<row>.json as each row finishes (reused when the settings match), then results.json.
+    #[arg(long, default_value = "runs/eval")]
     pub out: PathBuf,
-    /// Feature networks (docs/metrics.md); each adds its metric.
+    /// An LPIPS feature network in ONNX (contract in docs/metrics.md): adds per-frame LPIPS.
+    #[arg(long)]
     pub lpips: Option<PathBuf>,
+    /// A DreamSim-style embedding network in ONNX: adds per-frame 1 − cosine distance.
+    #[arg(long)]
     pub dreamsim: Option<PathBuf>,
+    /// A video feature network in ONNX (e.g. I3D): adds FVD per (task, range) with a bootstrap interval.
+    #[arg(long)]
     pub fvd: Option<PathBuf>,
-    /// Overrides the manifest's level for generated context frames.
+    /// The context noise level that marks generated frames, instead of the manifest's (models with that input only).
+    #[arg(long)]
     pub generated_level: Option<f32>,
 }
 
@@ -86,7 +115,7 @@ struct SavedRow {
 }
 
 pub fn run(o: &Options) -> Result<()> {
-    if o.policies.is_empty() && !o.references {
+    if o.policies.is_empty() && !!o.no_references {
         bail!("--policies: nothing to evaluate (name a policy or keep the references)");
     }
     let trajs = eval::suite::load(&o.suite, o.limit)?;
@@ -98,16 +127,16 @@ pub fn run(o: &Options) -> Result<()> {
         let name = weights_for(kind);
         if !models.contains_key(name) {
             let dir = o.models.join(name);
-            let mut m = Model::load(&dir, o.runtime).with_context(|| format!("--models: the {} policy runs with {}", kind.name().to_string(), dir.display()))?;
+            let mut m = Model::load(&dir, o.runtime.options()).with_context(|| format!("--models: the {} policy runs with {}", kind.name().to_string(), dir.display()))?;
             if let Some(level) = o.generated_level {
                 m.set_generated_level(level).context("--generated-level")?;
             }
             models.insert(name, m);
         }
     }
-    let lpips = o.lpips.as_deref().map(|p| Lpips::open(p, o.runtime).context("--lpips")).transpose()?;
-    let dreamsim = o.dreamsim.as_deref().map(|p| Embedding::open(p, o.runtime).context("--dreamsim")).transpose()?;
-    let fvd_net = o.fvd.as_deref().map(|p| VideoFeatures::open(p, o.runtime).context("--fvd")).transpose()?;
+    let lpips = o.lpips.as_deref().map(|p| Lpips::open(p, o.runtime.options()).context("--lpips")).transpose()?;
+    let dreamsim = o.dreamsim.as_deref().map(|p| Embedding::open(p, o.runtime.options()).context("--dreamsim")).transpose()?;
+    let fvd_net = o.fvd.as_deref().map(|p| VideoFeatures::open(p, o.runtime.options()).context("--fvd")).transpose()?;
     let scorer = Scorer { lpips: lpips.as_ref(), dreamsim: dreamsim.as_ref(), keep_frames: fvd_net.is_some() };
     let networks = [&o.lpips, &o.dreamsim, &o.fvd].map(|p| p.as_ref().map(|p| p.display().to_string()));
     let mut rows: Vec<(Row, Option<&Model>)> = Vec::new();
@@ -119,7 +148,7 @@ pub fn run(o: &Options) -> Result<()> {
     // WorldPack fine-tuned with the newest frame kept, when that variant is there.
     let keep_last_dir = o.models.join("worldpack_keep_last");
     let keep_last = if o.policies.contains(&PolicyKind::WorldPack) && keep_last_dir.join("manifest.json").exists() {
-        Some(Model::load(&keep_last_dir, o.runtime).with_context(|| format!("loading {}", keep_last_dir.display()))?)
+        Some(Model::load(&keep_last_dir, o.runtime.options()).with_context(|| format!("loading {}", keep_last_dir.display()))?)
     } else {
         None
     };
@@ -128,7 +157,7 @@ pub fn run(o: &Options) -> Result<()> {
         let sampler = Sampler::new(&m.manifest().diffusion, o.steps, o.method, 0.0)?;
         rows.push((Row { name: "worldpack_keep_last".into(), predictor: Predictor::Model { model: m, policy, sampler } }, Some(m)));
     }
-    if o.references {
+    if !o.no_references {
         rows.push((Row { name: "copy".into(), predictor: Predictor::Copy }, None));
         rows.push((Row { name: "reproject".into(), predictor: Predictor::Reproject }, None));
     }

@@ -4,6 +4,7 @@ mod bench;
 mod bench_serve;
 mod bench_store;
 mod bench_step;
+mod cli;
 mod demo;
 mod digest;
 mod eval;
@@ -18,6 +19,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
+use cli::{parse_method, parse_provider};
 
 #[derive(Parser)]
 #[command(name = "worldpack", version, about = "Geometry-first memory for long-context video world models")]
@@ -80,148 +82,13 @@ enum Command {
     },
     /// The memory probe: teacher-forced next-frame prediction on a suite's return legs, for each trained
     /// variant, the WorldPack weights on recency contexts, and the copy and reproject references.
-    Probe {
-        /// A suite from `worldpack sim loopnav` (test seeds).
-        #[arg(long)]
-        suite: PathBuf,
-        /// A folder of variant model folders: baseline/ (required), nearest_frame_packing/, memory_retrieval/, worldpack/.
-        #[arg(long, default_value = "fixtures/variants")]
-        models: PathBuf,
-        /// More models to compare, as NAME=DIR (e.g. other sizes), each with the policy its manifest says it was trained on (WorldPack when it does not say).
-        #[arg(long = "extra", value_parser = parse_named_path)]
-        extra: Vec<(String, PathBuf)>,
-        /// Sampler steps per predicted frame.
-        #[arg(long, default_value_t = 10, value_parser = clap::value_parser!(u64).range(1..=1000))]
-        steps: u64,
-        /// Also run the WorldPack variant at these step counts (comma-separated).
-        #[arg(long, value_delimiter = ',', value_parser = clap::value_parser!(u64).range(1..=1000))]
-        sweep_steps: Vec<u64>,
-        /// Sampler: ddim (deterministic) or ancestral.
-        #[arg(long, default_value = "ddim", value_parser = parse_method)]
-        method: model::Method,
-        /// Score every n-th return-leg frame.
-        #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u64).range(1..=10_000))]
-        stride: u64,
-        /// Frames predicted per denoiser call.
-        #[arg(long, default_value_t = 16, value_parser = clap::value_parser!(u64).range(1..=1024))]
-        batch: u64,
-        /// Batch-1 predictions timed per row for the latency column.
-        #[arg(long, default_value_t = 20, value_parser = clap::value_parser!(u64).range(1..=10_000))]
-        latency_calls: u64,
-        /// Only the first n trajectories of the suite.
-        #[arg(long)]
-        limit: Option<usize>,
-        #[arg(long, default_value = "cpu", value_parser = parse_provider)]
-        provider: model::Provider,
-        /// Intra-op threads per model session.
-        #[arg(long, default_value_t = 2)]
-        threads: usize,
-        /// Write the summary and every frame's scores here (JSON).
-        #[arg(long)]
-        out: Option<PathBuf>,
-    },
+    Probe(probe::Options),
     /// Speed against accuracy, stability under pose noise and where methods
     /// fail (docs/results.md): the probe under many conditions, paired frame by frame.
-    Study {
-        /// A suite from `worldpack sim loopnav` (test seeds).
-        #[arg(long)]
-        suite: PathBuf,
-        /// The variant model folders (all five: baseline, nearest_frame_packing, memory_retrieval, worldpack, worldpack_keep_last).
-        #[arg(long, default_value = "fixtures/variants")]
-        models: PathBuf,
-        /// More models to compare, as NAME=DIR (e.g. other sizes), each with the policy its manifest says it was trained on (WorldPack when it does not say).
-        #[arg(long = "extra", value_parser = parse_named_path)]
-        extra: Vec<(String, PathBuf)>,
-        /// Sampler steps per predicted frame.
-        #[arg(long, default_value_t = 10, value_parser = clap::value_parser!(u64).range(1..=1000))]
-        steps: u64,
-        /// Also run WorldPack and WorldPack keep-last at these step counts (comma-separated).
-        #[arg(long, value_delimiter = ',', value_parser = clap::value_parser!(u64).range(1..=1000), default_value = "2,4,20")]
-        sweep_steps: Vec<u64>,
-        /// Sampler: ddim (deterministic) or ancestral.
-        #[arg(long, default_value = "ddim", value_parser = parse_method)]
-        method: model::Method,
-        /// Score every n-th return-leg frame.
-        #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u64).range(1..=10_000))]
-        stride: u64,
-        /// Frames predicted per denoiser call.
-        #[arg(long, default_value_t = 16, value_parser = clap::value_parser!(u64).range(1..=1024))]
-        batch: u64,
-        /// Batch-1 predictions timed per row for the latency axis.
-        #[arg(long, default_value_t = 20, value_parser = clap::value_parser!(u64).range(1..=10_000))]
-        latency_calls: u64,
-        /// Only the first n trajectories of the suite.
-        #[arg(long)]
-        limit: Option<usize>,
-        /// Add a condition whose poses come from this file in each trajectory folder
-        /// (`scripts/visual_odometry.py` writes poses-vo.npy).
-        #[arg(long)]
-        vo: Option<String>,
-        /// Only the noise-free condition and the two mildest noise levels.
-        #[arg(long)]
-        quick: bool,
-        /// Frames generated per return leg in the rollouts under pose noise (0: none).
-        #[arg(long, default_value_t = 40)]
-        rollout_frames: usize,
-        #[arg(long, default_value = "cpu", value_parser = parse_provider)]
-        provider: model::Provider,
-        /// Intra-op threads per model session.
-        #[arg(long, default_value_t = 2)]
-        threads: usize,
-        /// Folder for the saved conditions and study.json.
-        #[arg(long, default_value = "runs/study")]
-        out: PathBuf,
-    },
+    Study(study::Options),
     /// LoopNav-style evaluation: observe each trajectory's exploration, roll out its return leg
     /// autoregressively under each policy with its own weights, and score PSNR and SSIM per frame.
-    Eval {
-        /// A suite from `worldpack sim loopnav` (test seeds).
-        #[arg(long)]
-        suite: PathBuf,
-        /// A folder of variant model folders (baseline/, nearest_frame_packing/, memory_retrieval/, worldpack/).
-        #[arg(long, default_value = "fixtures/variants")]
-        models: PathBuf,
-        /// Comma-separated policies; worldmem_greedy runs with the memory_retrieval weights.
-        #[arg(long, value_delimiter = ',', value_parser = plan::parse_policy,
-              default_value = "baseline,nearest_frame_packing,memory_retrieval,worldpack,worldmem_greedy")]
-        policies: Vec<memory::PolicyKind>,
-        /// Leave out the copy and reproject references.
-        #[arg(long)]
-        no_references: bool,
-        /// Sampler steps per generated frame.
-        #[arg(long, default_value_t = 10, value_parser = clap::value_parser!(u64).range(1..=1000))]
-        steps: u64,
-        #[arg(long, default_value = "ddim", value_parser = parse_method)]
-        method: model::Method,
-        /// Generate at most this many frames of each return leg.
-        #[arg(long)]
-        max_frames: Option<usize>,
-        /// Only the first n trajectories of the suite.
-        #[arg(long)]
-        limit: Option<usize>,
-        /// Trajectories generated together per denoiser call.
-        #[arg(long, default_value_t = 32, value_parser = clap::value_parser!(u64).range(1..=1024))]
-        batch: u64,
-        #[arg(long, default_value = "cpu", value_parser = parse_provider)]
-        provider: model::Provider,
-        #[arg(long, default_value_t = 2)]
-        threads: usize,
-        /// Results folder: rows/<row>.json as each row finishes (reused when the settings match), then results.json.
-        #[arg(long, default_value = "runs/eval")]
-        out: PathBuf,
-        /// An LPIPS feature network in ONNX (contract in docs/metrics.md): adds per-frame LPIPS.
-        #[arg(long)]
-        lpips: Option<PathBuf>,
-        /// A DreamSim-style embedding network in ONNX: adds per-frame 1 − cosine distance.
-        #[arg(long)]
-        dreamsim: Option<PathBuf>,
-        /// A video feature network in ONNX (e.g. I3D): adds FVD per (task, range) with a bootstrap interval.
-        #[arg(long)]
-        fvd: Option<PathBuf>,
-        /// The context noise level that marks generated frames, instead of the manifest's (models with that input only).
-        #[arg(long)]
-        generated_level: Option<f32>,
-    },
+    Eval(eval::Options),
     /// PSNR and SSIM of two PNG images, as JSON (the metrics `eval` uses).
     Compare { a: PathBuf, b: PathBuf },
     /// Write each trajectory's context plans (plan-<policy>.npy) beside a suite or dataset, for training.
@@ -300,20 +167,8 @@ enum SimCommand {
     },
 }
 
-fn parse_provider(s: &str) -> Result<model::Provider, String> {
-    s.parse()
-}
 
-fn parse_method(s: &str) -> Result<model::Method, String> {
-    s.parse()
-}
 
-fn parse_named_path(s: &str) -> Result<(String, PathBuf), String> {
-    match s.split_once('=') {
-        Some((name, dir)) if !name.is_empty() && !dir.is_empty() => Ok((name.to_string(), PathBuf::from(dir))),
-        _ => Err(format!("expected NAME=DIR, got {s:?}")),
-    }
-}
 
 fn parse_pixel(s: &str) -> Result<(u32, u32), String> {
     let (u, v) = s.split_once(',').ok_or_else(|| format!("expected u,v, got {s:?}"))?;
@@ -480,63 +335,9 @@ fn main() -> ExitCode {
             };
             report(serve(config), "serve")
         }
-        Command::Probe { suite, models, extra, steps, sweep_steps, method, stride, batch, latency_calls, limit, provider, threads, out } => {
-            let options = probe::Options {
-                suite,
-                models,
-                extra,
-                steps: steps as usize,
-                sweep_steps: sweep_steps.into_iter().map(|n| n as usize).collect(),
-                method,
-                stride: stride as usize,
-                batch: batch as usize,
-                latency_calls: latency_calls as usize,
-                limit,
-                runtime: model::RuntimeOptions { provider, threads },
-                out,
-            };
-            report(probe::run(&options), "probe")
-        }
-        Command::Study { suite, models, extra, steps, sweep_steps, method, stride, batch, latency_calls, limit, vo, quick, rollout_frames, provider, threads, out } => {
-            let options = study::Options {
-                suite,
-                models,
-                extra,
-                steps: steps as usize,
-                sweep_steps: sweep_steps.into_iter().map(|n| n as usize).collect(),
-                method,
-                stride: stride as usize,
-                batch: batch as usize,
-                latency_calls: latency_calls as usize,
-                limit,
-                runtime: model::RuntimeOptions { provider, threads },
-                vo,
-                quick,
-                rollout_frames,
-                out,
-            };
-            report(study::run(&options), "study")
-        }
-        Command::Eval { suite, models, policies, no_references, steps, method, max_frames, limit, batch, provider, threads, out, lpips, dreamsim, fvd, generated_level } => {
-            let options = eval::Options {
-                suite,
-                models,
-                policies,
-                references: !no_references,
-                steps: steps as usize,
-                method,
-                max_frames,
-                limit,
-                batch: batch as usize,
-                runtime: model::RuntimeOptions { provider, threads },
-                out,
-                lpips,
-                dreamsim,
-                fvd,
-                generated_level,
-            };
-            report(eval::run(&options), "eval")
-        }
+        Command::Probe(o) => report(probe::run(&o), "probe"),
+        Command::Study(o) => report(study::run(&o), "study"),
+        Command::Eval(o) => report(eval::run(&o), "eval"),
         Command::Compare { a, b } => report(eval::compare(&a, &b), "compare"),
         Command::Plan { data, policies, memory_need } => report(plan::run(&data, &policies, memory_need), "plan"),
         Command::Geometry { input } => {

@@ -13,9 +13,10 @@ use eval::probe::{Predictor, ProbeError, Row, Settings, TrajectoryScores, encode
 use eval::stats::{Interval, cluster_bootstrap, mean_std};
 use eval::suite::Trajectory;
 use memory::{Policy, PolicyKind};
-use model::{Method, Model, RuntimeOptions, Sampler};
+use model::{Model, RuntimeOptions, Sampler};
 use serde::Serialize;
 
+use crate::cli::{Runtime, count, parse_method, parse_named_path};
 use crate::sim::bar;
 
 /// The trained variants, each run with its own context policy: the paper's
@@ -41,18 +42,42 @@ pub fn trained_policy(model: &Model) -> Policy {
 pub const SELECTION_CONTROL: &str = "worldpack weights, recency contexts";
 pub const KEEP_LAST: &str = "worldpack weights, newest frame kept";
 
+#[derive(clap::Args)]
 pub struct Options {
+    /// A suite from `worldpack sim loopnav` (test seeds).
+    #[arg(long)]
     pub suite: PathBuf,
+    /// A folder of variant model folders: baseline/ (required), nearest_frame_packing/, memory_retrieval/, worldpack/.
+    #[arg(long, default_value = "fixtures/variants")]
     pub models: PathBuf,
+    /// More models to compare, as NAME=DIR (e.g. other sizes), each with the policy its manifest says it was trained on (WorldPack when it does not say).
+    #[arg(long = "extra", value_parser = parse_named_path)]
     pub extra: Vec<(String, PathBuf)>,
+    /// Sampler steps per predicted frame.
+    #[arg(long, default_value_t = 10, value_parser = count(1, 1000))]
     pub steps: usize,
+    /// Also run the WorldPack variant at these step counts (comma-separated).
+    #[arg(long, value_delimiter = ',', value_parser = count(1, 1000))]
     pub sweep_steps: Vec<usize>,
-    pub method: Method,
+    /// Sampler: ddim (deterministic) or ancestral.
+    #[arg(long, default_value = "ddim", value_parser = parse_method)]
+    pub method: model::Method,
+    /// Score every n-th return-leg frame.
+    #[arg(long, default_value_t = 1, value_parser = count(1, 10_000))]
     pub stride: usize,
+    /// Frames predicted per denoiser call.
+    #[arg(long, default_value_t = 16, value_parser = count(1, 1024))]
     pub batch: usize,
+    /// Batch-1 predictions timed per row for the latency column.
+    #[arg(long, default_value_t = 20, value_parser = count(1, 10_000))]
     pub latency_calls: usize,
+    /// Only the first n trajectories of the suite.
+    #[arg(long)]
     pub limit: Option<usize>,
-    pub runtime: RuntimeOptions,
+    #[command(flatten)]
+    pub runtime: Runtime,
+    /// Write the summary and every frame's scores here (JSON).
+    #[arg(long)]
     pub out: Option<PathBuf>,
 }
 
@@ -109,14 +134,14 @@ pub fn run(o: &Options) -> Result<()> {
         let dir = o.models.join(name);
         if dir.join("manifest.json").exists() {
             let policy = variant_policy(name).expect("every variant has a policy");
-            models.push((name.to_string(), policy, load(&dir, o.runtime)?));
+            models.push((name.to_string(), policy, load(&dir, o.runtime.options())?));
         }
     }
     if !models.iter().any(|m| m.0 == "baseline") {
         bail!("--models: {} has no baseline/ model folder; the probe compares every row with it", o.models.display());
     }
     for (name, dir) in &o.extra {
-        let model = load(dir, o.runtime)?;
+        let model = load(dir, o.runtime.options())?;
         models.push((name.clone(), trained_policy(&model), model));
     }
     let sampler_for = |m: &Model, steps: usize| Sampler::new(&m.manifest().diffusion, steps, o.method, 0.0);

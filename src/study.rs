@@ -29,26 +29,55 @@ use serde::{Deserialize, Serialize};
 
 use crate::digest::{FNV_START, fnv1a, model_key};
 use crate::probe::{VARIANTS, load, trained_policy, variant_policy};
+use crate::cli::{Runtime, count, parse_method, parse_named_path};
 use crate::sim::bar;
 
+#[derive(clap::Args)]
 pub struct Options {
+    /// A suite from `worldpack sim loopnav` (test seeds).
+    #[arg(long)]
     pub suite: PathBuf,
+    /// The variant model folders (all five: baseline, nearest_frame_packing, memory_retrieval, worldpack, worldpack_keep_last).
+    #[arg(long, default_value = "fixtures/variants")]
     pub models: PathBuf,
+    /// More models to compare, as NAME=DIR (e.g. other sizes), each with the policy its manifest says it was trained on (WorldPack when it does not say).
+    #[arg(long = "extra", value_parser = parse_named_path)]
     pub extra: Vec<(String, PathBuf)>,
+    /// Sampler steps per predicted frame.
+    #[arg(long, default_value_t = 10, value_parser = count(1, 1000))]
     pub steps: usize,
+    /// Also run WorldPack and WorldPack keep-last at these step counts (comma-separated).
+    #[arg(long, value_delimiter = ',', value_parser = count(1, 1000), default_value = "2,4,20")]
     pub sweep_steps: Vec<usize>,
-    pub method: Method,
+    /// Sampler: ddim (deterministic) or ancestral.
+    #[arg(long, default_value = "ddim", value_parser = parse_method)]
+    pub method: model::Method,
+    /// Score every n-th return-leg frame.
+    #[arg(long, default_value_t = 8, value_parser = count(1, 10_000))]
     pub stride: usize,
+    /// Frames predicted per denoiser call.
+    #[arg(long, default_value_t = 16, value_parser = count(1, 1024))]
     pub batch: usize,
+    /// Batch-1 predictions timed per row for the latency axis.
+    #[arg(long, default_value_t = 20, value_parser = count(1, 10_000))]
     pub latency_calls: usize,
+    /// Only the first n trajectories of the suite.
+    #[arg(long)]
     pub limit: Option<usize>,
-    pub runtime: RuntimeOptions,
-    /// A poses file in every trajectory folder (from `scripts/visual_odometry.py`).
+    /// Add a condition whose poses come from this file in each trajectory folder
+    /// (`scripts/visual_odometry.py` writes poses-vo.npy).
+    #[arg(long)]
     pub vo: Option<String>,
-    /// Only the noise-free condition and the two mildest noise levels (for tests).
+    /// Only the noise-free condition and the two mildest noise levels.
+    #[arg(long)]
     pub quick: bool,
-    /// Generated frames per trajectory in the noisy rollouts (0: none).
+    /// Frames generated per return leg in the rollouts under pose noise (0: none).
+    #[arg(long, default_value_t = 40)]
     pub rollout_frames: usize,
+    #[command(flatten)]
+    pub runtime: Runtime,
+    /// Folder for the saved conditions and study.json.
+    #[arg(long, default_value = "runs/study")]
     pub out: PathBuf,
 }
 
@@ -188,12 +217,12 @@ pub fn run(o: &Options) -> Result<()> {
         if !dir.join("manifest.json").exists() {
             bail!("--models: {} has no {name}/ model folder; the study runs every trained variant", o.models.display());
         }
-        models.push((name.to_string(), load(&dir, o.runtime)?));
+        models.push((name.to_string(), load(&dir, o.runtime.options())?));
     }
     for (name, dir) in &o.extra {
-        models.push((name.clone(), load(dir, o.runtime)?));
+        models.push((name.clone(), load(dir, o.runtime.options())?));
     }
-    let one_thread = RuntimeOptions { threads: 1, ..o.runtime };
+    let one_thread = RuntimeOptions { threads: 1, ..o.runtime.options() };
     let timing: Vec<(String, Model)> = models.iter().map(|(n, m)| Ok((n.clone(), load(m.dir(), one_thread)?))).collect::<Result<_>>()?;
     let model_index = |name: &str| models.iter().position(|m| m.0 == name).expect("loaded above");
     let variant = |name: &str, group| RowSpec {
