@@ -11,14 +11,14 @@ use anyhow::{Context, Result, bail};
 use eval::features::{Embedding, Lpips, VideoFeatures};
 use eval::probe::{FrameScore, Predictor, Row, encode_all};
 use eval::rollout::{FvdEstimate, Scorer, clip_fvd, rollout, rollout_frames};
-use eval::stats::mean_std;
+use eval::stats::{Interval, PooledRow, mean_std};
 use eval::suite::Trajectory;
 use memory::{Policy, PolicyKind};
 use model::{Model, Sampler};
 use serde::{Deserialize, Serialize};
 
 use crate::digest::model_key;
-use crate::cli::{Runtime, count, parse_method};
+use crate::cli::{Runtime, count, parse_method, parse_named_path};
 use crate::sim::bar;
 
 #[derive(clap::Args)]
@@ -67,6 +67,12 @@ pub struct Options {
     /// The context noise level that marks generated frames, instead of the manifest's (models with that input only).
     #[arg(long)]
     pub generated_level: Option<f32>,
+    /// More model rows, as NAME=DIR, each run with the policy its manifest says it was trained on.
+    #[arg(long = "extra", value_parser = parse_named_path)]
+    pub extra: Vec<(String, PathBuf)>,
+    /// The row the paired differences are taken against (default: the first row).
+    #[arg(long)]
+    pub against: Option<String>,
 }
 
 /// Bootstrap resamples of clips for an FVD interval.
@@ -115,7 +121,7 @@ struct SavedRow {
 }
 
 pub fn run(o: &Options) -> Result<()> {
-    if o.policies.is_empty() && !!o.no_references {
+    if o.policies.is_empty() && o.no_references {
         bail!("--policies: nothing to evaluate (name a policy or keep the references)");
     }
     let trajs = eval::suite::load(&o.suite, o.limit)?;
@@ -156,6 +162,21 @@ pub fn run(o: &Options) -> Result<()> {
         let policy = crate::probe::trained_policy(m);
         let sampler = Sampler::new(&m.manifest().diffusion, o.steps, o.method, 0.0)?;
         rows.push((Row { name: "worldpack_keep_last".into(), predictor: Predictor::Model { model: m, policy, sampler } }, Some(m)));
+    }
+    let mut extras = Vec::with_capacity(o.extra.len());
+    for (name, dir) in &o.extra {
+        let mut m = Model::load(dir, o.runtime.options()).with_context(|| format!("--extra {name}={}", dir.display()))?;
+        if let Some(level) = o.generated_level {
+            m.set_generated_level(level).with_context(|| format!("--generated-level for --extra {name}"))?;
+        }
+        extras.push((name.clone(), m));
+    }
+    for (name, m) in &extras {
+        let sampler = Sampler::new(&m.manifest().diffusion, o.steps, o.method, 0.0)?;
+        rows.push((Row { name: name.clone(), predictor: Predictor::Model { model: m, policy: crate::probe::trained_policy(m), sampler } }, Some(m)));
+    }
+    if let Some(dup) = rows.iter().enumerate().find(|(i, (r, _))| rows[..*i].iter().any(|(q, _)| q.name == r.name)) {
+        bail!("--extra: two rows are called {:?}", dup.1.0.name);
     }
     if !o.no_references {
         rows.push((Row { name: "copy".into(), predictor: Predictor::Copy }, None));
@@ -213,6 +234,13 @@ pub fn run(o: &Options) -> Result<()> {
     }
     let summary = summarise(&trajs, &results);
     print(&summary);
+    let against = o.against.clone().unwrap_or_else(|| results[0].0.clone());
+    if !results.iter().any(|(n, _)| *n == against) {
+        bail!("--against: no row called {against:?}");
+    }
+    let scores: Vec<(&str, &[Vec<FrameScore>])> = results.iter().map(|(n, r)| (n.as_str(), r.frames.as_slice())).collect();
+    let pooled = eval::stats::pooled(&scores, &against, POOLED_REPS).expect("the row was checked above");
+    print_pooled(&pooled, &against);
     let json = serde_json::json!({
         "format": "worldpack-eval/1",
         "suite": o.suite,
@@ -224,6 +252,8 @@ pub fn run(o: &Options) -> Result<()> {
             "returning_point": t.entry.returning_point, "frames": t.len()})).collect::<Vec<_>>(),
         "rows": results.iter().map(|(n, r)| serde_json::json!({"name": n, "wall_s": r.wall_s, "model": r.key.model})).collect::<Vec<_>>(),
         "cells": summary.cells,
+        "pooled": pooled,
+        "paired_against": against,
         "fvd": results.iter().map(|(n, r)| (n.clone(), &r.fvd)).collect::<BTreeMap<_, _>>(),
         "feature_networks": { "lpips": networks[0], "dreamsim": networks[1], "fvd": networks[2] },
         "curves": summary.curves,
@@ -233,6 +263,19 @@ pub fn run(o: &Options) -> Result<()> {
     std::fs::write(&path, serde_json::to_string(&json)?)?;
     println!("wrote {}", path.display());
     Ok(())
+}
+
+/// Bootstrap resamples of trajectories for the pooled intervals.
+const POOLED_REPS: usize = 4000;
+
+fn print_pooled(rows: &[PooledRow], against: &str) {
+    println!("\nPooled over every generated frame (95% bootstrap over trajectories); differences paired against {against}");
+    println!("{:<28} {:>24} {:>22} {:>26} {:>26}", "row", "PSNR", "SSIM", "PSNR diff", "SSIM diff");
+    let iv = |i: &Interval, d: usize| format!("{:.d$} [{:.d$}, {:.d$}]", i.mean, i.lo, i.hi);
+    for r in rows {
+        let diff = |i: &Option<Interval>, d: usize| i.as_ref().map_or("—".into(), |i| iv(i, d));
+        println!("{:<28} {:>24} {:>22} {:>26} {:>26}", r.row, iv(&r.psnr, 2), iv(&r.ssim, 3), diff(&r.psnr_diff, 2), diff(&r.ssim_diff, 3));
+    }
 }
 
 #[derive(Serialize)]

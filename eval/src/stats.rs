@@ -5,6 +5,8 @@
 use memory::rng::SplitMix64;
 use serde::Serialize;
 
+use crate::probe::FrameScore;
+
 /// Mean and sample standard deviation (0 for fewer than two values).
 pub fn mean_std(xs: &[f64]) -> (f64, f64) {
     let n = xs.len();
@@ -65,6 +67,52 @@ pub fn cluster_bootstrap(clusters: &[Vec<f64>], reps: usize, seed: u64) -> Inter
     Interval { mean, lo: at(0.025), hi: at(0.975), clusters: k, values: count }
 }
 
+/// One row over every scored frame of a suite.
+#[derive(Clone, Debug, Serialize)]
+pub struct PooledRow {
+    pub row: String,
+    /// Frame-weighted mean with a 95% bootstrap interval over trajectories.
+    pub psnr: Interval,
+    pub ssim: Interval,
+    /// The mean of each trajectory's mean (every trajectory counts once).
+    pub psnr_trajectory_weighted: f64,
+    pub ssim_trajectory_weighted: f64,
+    /// This row minus the reference row, frame by frame, pooled (absent for the reference itself).
+    pub psnr_diff: Option<Interval>,
+    pub ssim_diff: Option<Interval>,
+}
+
+/// Pooled PSNR and SSIM of each row (per trajectory, per frame; every row
+/// scores the same frames in the same order), and each row's paired
+/// difference to row `against`. `None` when no row is called `against`.
+pub fn pooled(rows: &[(&str, &[Vec<FrameScore>])], against: &str, reps: usize) -> Option<Vec<PooledRow>> {
+    let reference = rows.iter().find(|(n, _)| *n == against)?.1;
+    let clusters = |r: &[Vec<FrameScore>], m: fn(&FrameScore) -> f64| -> Vec<Vec<f64>> { r.iter().map(|t| t.iter().map(m).collect()).collect() };
+    let paired = |r: &[Vec<FrameScore>], m: fn(&FrameScore) -> f64| -> Vec<Vec<f64>> {
+        r.iter().zip(reference).map(|(a, b)| a.iter().zip(b).map(|(x, y)| m(x) - m(y)).collect()).collect()
+    };
+    let trajectory_mean = |c: &[Vec<f64>]| mean_std(&c.iter().filter(|t| !t.is_empty()).map(|t| mean_std(t).0).collect::<Vec<_>>()).0;
+    let psnr = |f: &FrameScore| f.psnr;
+    let ssim = |f: &FrameScore| f.ssim;
+    Some(
+        rows.iter()
+            .map(|&(name, r)| {
+                let (p, q) = (clusters(r, psnr), clusters(r, ssim));
+                let own = name == against;
+                PooledRow {
+                    row: name.to_string(),
+                    psnr: cluster_bootstrap(&p, reps, 7),
+                    ssim: cluster_bootstrap(&q, reps, 7),
+                    psnr_trajectory_weighted: trajectory_mean(&p),
+                    ssim_trajectory_weighted: trajectory_mean(&q),
+                    psnr_diff: (!own).then(|| cluster_bootstrap(&paired(r, psnr), reps, 7)),
+                    ssim_diff: (!own).then(|| cluster_bootstrap(&paired(r, ssim), reps, 7)),
+                }
+            })
+            .collect(),
+    )
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -106,5 +154,20 @@ mod tests {
         clusters[0] = vec![-9.0; 50];
         let wide = cluster_bootstrap(&clusters, 1000, 3);
         assert!(wide.lo < 0.0 && wide.hi == 1.0, "{wide:?}");
+    }
+
+    #[test]
+    fn pooled_rows_pair_frames_and_weigh_trajectories() {
+        let score = |t: usize, psnr: f64| FrameScore { t, psnr, ssim: psnr / 100.0, lpips: None, dreamsim: None };
+        // Two trajectories, of 3 frames and 1 frame; the second row is 1 dB better on every frame.
+        let a = vec![vec![score(0, 10.0), score(1, 10.0), score(2, 10.0)], vec![score(0, 20.0)]];
+        let b: Vec<Vec<FrameScore>> = a.iter().map(|t| t.iter().map(|f| score(f.t, f.psnr + 1.0)).collect()).collect();
+        let rows = pooled(&[("a", &a), ("b", &b)], "a", 200).unwrap();
+        assert!((rows[0].psnr.mean - 12.5).abs() < 1e-12, "frame-weighted: (30 + 20) / 4");
+        assert!((rows[0].psnr_trajectory_weighted - 15.0).abs() < 1e-12, "trajectory-weighted: (10 + 20) / 2");
+        assert!(rows[0].psnr_diff.is_none());
+        let d = rows[1].psnr_diff.as_ref().unwrap();
+        assert!((d.mean - 1.0).abs() < 1e-12 && (d.lo - 1.0).abs() < 1e-12 && (d.hi - 1.0).abs() < 1e-12, "{d:?}");
+        assert!(pooled(&[("a", &a)], "missing", 10).is_none());
     }
 }
