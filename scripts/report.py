@@ -16,10 +16,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-ORDER = ["baseline", "nearest_frame_packing", "memory_retrieval", "worldmem_greedy", "worldpack", "worldpack_keep_last", "copy", "reproject"]
-LABEL = {"baseline": "Baseline (4 recent)", "nearest_frame_packing": "Nearest Frame Packing", "memory_retrieval": "Memory Retrieval",
-         "worldmem_greedy": "WorldMem greedy", "worldpack": "**WorldPack**", "worldpack_keep_last": "WorldPack, newest frame kept", "copy": "copy best-overlap observed frame",
-         "reproject": "reproject it with depth"}
+# Row order and labels come from `worldpack eval` (results.json: rows, labels; memory::variants in Rust).
+ORDER: list[str] = []
+LABEL: dict[str, str] = {}
 COLOURS = {"baseline": (60, 60, 60), "nearest_frame_packing": (40, 140, 40), "memory_retrieval": (200, 120, 30),
            "worldmem_greedy": (160, 60, 160), "worldpack": (30, 30, 200), "worldpack_keep_last": (0, 90, 255), "copy": (150, 150, 150), "reproject": (0, 170, 220)}
 FONT = cv2.FONT_HERSHEY_SIMPLEX
@@ -59,15 +58,13 @@ def curves_png(results, task, path):
     cv2.imwrite(str(path), img)
 
 
-def paired_interval(per_frame, row, metric, base="baseline", reps=4000, seed=7):
-    """Frame-weighted mean of row − base over all frames, with a 95% bootstrap
-    interval that resamples whole trajectories (frames within one are correlated)."""
-    sums = np.array([sum(x[metric] - y[metric] for x, y in zip(ta, tb)) for ta, tb in zip(per_frame[row], per_frame[base])])
-    counts = np.array([len(ta) for ta in per_frame[row]])
-    rng = np.random.default_rng(seed)
-    pick = rng.integers(0, len(sums), (reps, len(sums)))
-    boots = np.sort(sums[pick].sum(1) / counts[pick].sum(1))
-    return sums.sum() / counts.sum(), boots[int(0.025 * (reps - 1))], boots[int(round(0.975 * (reps - 1)))]
+def paired_interval(results, row, metric):
+    """Row − the reference row (`paired_against`, normally the baseline) over
+    every generated frame, with its 95% interval over trajectories, as
+    `worldpack eval` computed it (eval::stats::pooled); None when absent."""
+    entry = next((p for p in results.get("pooled", []) if p["row"] == row), None)
+    diff = entry and entry.get(f"{metric}_diff")
+    return (diff["mean"], diff["lo"], diff["hi"]) if diff else None
 
 
 def main():
@@ -79,6 +76,8 @@ def main():
     ap.add_argument("-o", "--output", required=True)
     a = ap.parse_args()
     res = json.loads(Path(a.results).read_text())
+    ORDER[:] = [r["name"] for r in res.get("rows", [])]
+    LABEL.update(res.get("labels", {}))
     out = Path(a.output)
     pictures = out.parent / "results"
     pictures.mkdir(parents=True, exist_ok=True)
@@ -148,19 +147,19 @@ def main():
         line = (f"The paper orders WorldPack first and the 4-frame baseline last among the learned methods. Here WorldPack is "
                 f"{learned.index('worldpack') + 1} of {len(learned)} learned methods, {d:+.2f} dB from the baseline")
         per_frame = res.get("per_frame", {})
-        if "worldpack" in per_frame and "baseline" in per_frame:
-            m, lo, hi = paired_interval(per_frame, "worldpack", "psnr")
+        if res.get("paired_against") == "baseline" and paired_interval(res, "worldpack", "psnr"):
+            m, lo, hi = paired_interval(res, "worldpack", "psnr")
             verdict = "above zero" if lo > 0 else "below zero" if hi < 0 else "spanning zero: these rollouts do not separate it from the baseline"
             line += f"; frame-weighted and paired, {m:+.2f} dB with a 95% interval of [{lo:+.2f}, {hi:+.2f}], {verdict}"
         lines.append(line + ".")
     per_frame = res.get("per_frame", {})
-    if "baseline" in per_frame:
+    if res.get("paired_against") == "baseline":
         lines += ["", "Paired differences to the baseline over every generated frame (95% bootstrap intervals over trajectories):", "",
                   "| method | ΔPSNR (dB) | ΔSSIM |", "|---|---|---|"]
         for row in rows:
-            if row == "baseline" or row not in per_frame:
+            if row == "baseline" or paired_interval(res, row, "psnr") is None:
                 continue
-            p, s_ = paired_interval(per_frame, row, "psnr"), paired_interval(per_frame, row, "ssim")
+            p, s_ = paired_interval(res, row, "psnr"), paired_interval(res, row, "ssim")
             lines.append(f"| {LABEL.get(row, row)} | {p[0]:+.2f} [{p[1]:+.2f}, {p[2]:+.2f}] | {s_[0]:+.3f} [{s_[1]:+.3f}, {s_[2]:+.3f}] |")
     total = sum(wall.values())
     frames = sum(len(t) for t in next(iter(per_frame.values()), []))

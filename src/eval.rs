@@ -254,6 +254,7 @@ pub fn run(o: &Options) -> Result<()> {
         "cells": summary.cells,
         "pooled": pooled,
         "paired_against": against,
+        "labels": results.iter().map(|(n, _)| (n.clone(), row_label(n))).collect::<BTreeMap<_, _>>(),
         "fvd": results.iter().map(|(n, r)| (n.clone(), &r.fvd)).collect::<BTreeMap<_, _>>(),
         "feature_networks": { "lpips": networks[0], "dreamsim": networks[1], "fvd": networks[2] },
         "curves": summary.curves,
@@ -263,6 +264,16 @@ pub fn run(o: &Options) -> Result<()> {
     std::fs::write(&path, serde_json::to_string(&json)?)?;
     println!("wrote {}", path.display());
     Ok(())
+}
+
+/// How tables and charts name a row: the registry's label for a policy, a
+/// sentence for a reference, the name itself for an extra model.
+pub fn row_label(name: &str) -> String {
+    match name {
+        "copy" => "copy best-overlap observed frame".into(),
+        "reproject" => "reproject it with depth".into(),
+        _ => memory::variant(name).map_or_else(|_| name.to_string(), |v| v.label.to_string()),
+    }
 }
 
 /// Bootstrap resamples of trajectories for the pooled intervals.
