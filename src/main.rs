@@ -60,9 +60,9 @@ enum Command {
         /// Sampler: ancestral or ddim.
         #[arg(long, default_value = "ancestral", value_parser = parse_method)]
         method: model::Method,
-        /// Policy of sessions that do not name one: baseline, nearest_frame_packing, memory_retrieval, worldpack, worldmem_greedy.
-        #[arg(long, default_value = "worldpack", value_parser = plan::parse_policy)]
-        policy: memory::PolicyKind,
+        /// Policy of sessions that do not name one, by name (memory::variants): a preset, or an option such as worldpack_target or worldpack_keep_last.
+        #[arg(long, default_value = "worldpack", value_parser = plan::parse_variant)]
+        policy: &'static memory::Variant,
         /// Requests queued on one session before the next is refused with 429.
         #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u64).range(1..=100_000))]
         max_queue: u64,
@@ -328,7 +328,7 @@ fn main() -> ExitCode {
                 runtime: model::RuntimeOptions { provider, threads },
                 steps: steps as usize,
                 method,
-                policy: serde_json::json!({ "kind": policy }),
+                policy: serde_json::json!({ "kind": policy.kind, "query": policy.query, "keep_last": policy.keep_last }),
                 max_queue_per_session: max_queue as usize,
                 max_inflight: max_inflight as usize,
                 ..api::Config::default()
