@@ -133,10 +133,7 @@ pub fn run(o: &Options) -> Result<()> {
         let name = weights_for(kind);
         if !models.contains_key(name) {
             let dir = o.models.join(name);
-            let mut m = Model::load(&dir, o.runtime.options()).with_context(|| format!("--models: the {} policy runs with {}", kind.name().to_string(), dir.display()))?;
-            if let Some(level) = o.generated_level {
-                m.set_generated_level(level).context("--generated-level")?;
-            }
+            let m = Model::load(&dir, o.runtime.options()).with_context(|| format!("--models: the {} policy runs with {}", kind.name(), dir.display()))?;
             models.insert(name, m);
         }
     }
@@ -145,6 +142,20 @@ pub fn run(o: &Options) -> Result<()> {
     let fvd_net = o.fvd.as_deref().map(|p| VideoFeatures::open(p, o.runtime.options()).context("--fvd")).transpose()?;
     let scorer = Scorer { lpips: lpips.as_ref(), dreamsim: dreamsim.as_ref(), keep_frames: fvd_net.is_some() };
     let networks = [&o.lpips, &o.dreamsim, &o.fvd].map(|p| p.as_ref().map(|p| p.display().to_string()));
+    let mut extras = Vec::with_capacity(o.extra.len());
+    for (name, dir) in &o.extra {
+        extras.push((name.clone(), Model::load(dir, o.runtime.options()).with_context(|| format!("--extra {name}={}", dir.display()))?));
+    }
+    if let Some(level) = o.generated_level {
+        // Only models with a context-noise input take a level; at least one must.
+        let takers: Vec<&mut Model> = models.values_mut().chain(extras.iter_mut().map(|(_, m)| m)).filter(|m| m.manifest().denoiser.context_noise.is_some()).collect();
+        if takers.is_empty() {
+            bail!("--generated-level: none of these models takes context noise levels");
+        }
+        for m in takers {
+            m.set_generated_level(level).context("--generated-level")?;
+        }
+    }
     let mut rows: Vec<(Row, Option<&Model>)> = Vec::new();
     for &kind in &o.policies {
         let m = &models[weights_for(kind)];
@@ -162,14 +173,6 @@ pub fn run(o: &Options) -> Result<()> {
         let policy = crate::probe::trained_policy(m);
         let sampler = Sampler::new(&m.manifest().diffusion, o.steps, o.method, 0.0)?;
         rows.push((Row { name: "worldpack_keep_last".into(), predictor: Predictor::Model { model: m, policy, sampler } }, Some(m)));
-    }
-    let mut extras = Vec::with_capacity(o.extra.len());
-    for (name, dir) in &o.extra {
-        let mut m = Model::load(dir, o.runtime.options()).with_context(|| format!("--extra {name}={}", dir.display()))?;
-        if let Some(level) = o.generated_level {
-            m.set_generated_level(level).with_context(|| format!("--generated-level for --extra {name}"))?;
-        }
-        extras.push((name.clone(), m));
     }
     for (name, m) in &extras {
         let sampler = Sampler::new(&m.manifest().diffusion, o.steps, o.method, 0.0)?;
