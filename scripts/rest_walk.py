@@ -98,16 +98,16 @@ def run_row(binary: str, model: str, policy: str, seed: int, steps: int, method:
 
 
 def curve(results: dict, path: Path) -> None:
-    w, h, pad = 720, 300, 40
+    w, h, pad = 720, 320, 40
     img = np.full((h, w, 3), 255, np.uint8)
     n = len(next(iter(results.values()))["steps"])
     values = [s["psnr_db"] for r in results.values() for s in r["steps"]]
     lo, hi = np.floor(min(values)) - 1, np.ceil(max(values)) + 1
     x = lambda i: int(pad + (w - 2 * pad) * i / max(n - 1, 1))
-    y = lambda v: int(h - pad - (h - 2 * pad) * (v - lo) / (hi - lo))
+    y = lambda v: int(h - 2 * pad - (h - 3 * pad) * (v - lo) / (hi - lo))
     start = 0
     for phase, length in [("look around", LOOK), ("out", OUT), ("turn back", TURN), ("back", BACK)]:
-        cv2.line(img, (x(start), pad), (x(start), h - pad), (200, 200, 200), 1)
+        cv2.line(img, (x(start), pad), (x(start), h - 2 * pad), (200, 200, 200), 1)
         cv2.putText(img, phase, (x(start) + 3, pad - 8), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (90, 90, 90), 1, cv2.LINE_AA)
         start += length
     for v in np.arange(lo, hi + 0.1, 2):
@@ -117,8 +117,10 @@ def curve(results: dict, path: Path) -> None:
         c = colours[k % len(colours)][::-1]
         pts = np.array([(x(i), y(s["psnr_db"])) for i, s in enumerate(r["steps"])], np.int32)
         cv2.polylines(img, [pts], False, c, 2, cv2.LINE_AA)
-        cv2.putText(img, name, (w - 170, pad + 16 * (k + 1)), cv2.FONT_HERSHEY_SIMPLEX, 0.45, c, 1, cv2.LINE_AA)
-    cv2.putText(img, "PSNR (dB) against the true frame, per REST step", (pad, h - 10), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1, cv2.LINE_AA)
+        # Legend along the bottom, below the curves.
+        cv2.line(img, (pad + 170 * k, h - 28), (pad + 170 * k + 20, h - 28), c, 3)
+        cv2.putText(img, name, (pad + 170 * k + 25, h - 24), cv2.FONT_HERSHEY_SIMPLEX, 0.4, c, 1, cv2.LINE_AA)
+    cv2.putText(img, "PSNR (dB) against the true frame, per REST step", (pad, h - 6), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1, cv2.LINE_AA)
     cv2.imwrite(str(path), img)
 
 
@@ -126,12 +128,12 @@ def strip(results: dict, path: Path, scale: int = 2) -> None:
     first = next(iter(results.values()))
     indices = sorted(first["truths"])
     rows = [("truth", [first["truths"][i] for i in indices])] + [(n, [r["frames"][i] for i in indices]) for n, r in results.items()]
-    label_w = 90
+    label_w = 150
     tiles = []
     for name, images in rows:
         line = np.concatenate([cv2.resize(im, None, fx=scale, fy=scale, interpolation=cv2.INTER_NEAREST) for im in images], axis=1)
         label = np.full((line.shape[0], label_w, 3), 255, np.uint8)
-        cv2.putText(label, name[:11], (4, line.shape[0] // 2), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 0, 0), 1, cv2.LINE_AA)
+        cv2.putText(label, name[:22], (4, line.shape[0] // 2), cv2.FONT_HERSHEY_SIMPLEX, 0.38, (0, 0, 0), 1, cv2.LINE_AA)
         tiles.append(np.concatenate([label, line], axis=1))
     cv2.imwrite(str(path), cv2.cvtColor(np.concatenate(tiles, axis=0), cv2.COLOR_RGB2BGR))
 
