@@ -140,3 +140,15 @@ fn bench_store_writes_and_reads_back_both_databases() {
         assert!(r["bytes_per_frame"].as_u64().unwrap() > 4096, "a latent alone is 4 KiB");
     }
 }
+
+#[test]
+fn the_where_to_add_table_names_real_files() {
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let doc = std::fs::read_to_string(root.join("docs/architecture.md")).unwrap();
+    let table = doc.split("## Where to add things").nth(1).expect("the section exists").split("\n## ").next().unwrap();
+    let paths: Vec<&str> = table.split('`').skip(1).step_by(2).filter(|t| t.contains('/') && t.contains('.') && !t.contains(' ')).collect();
+    assert!(paths.len() >= 12, "the table names files: {paths:?}");
+    for p in paths {
+        assert!(root.join(p).exists(), "docs/architecture.md names {p}, which does not exist");
+    }
+}
