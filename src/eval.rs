@@ -11,7 +11,8 @@ use anyhow::{Context, Result, bail};
 use eval::features::{Embedding, Lpips, VideoFeatures};
 use eval::probe::{FrameScore, Predictor, Row, encode_all};
 use eval::rollout::{FvdEstimate, Scorer, clip_fvd, rollout, rollout_frames};
-use eval::stats::{Interval, PooledRow, mean_std};
+use eval::stats::{Interval, PooledRow};
+use eval::summary::{Summary, cells_of, summarise};
 use eval::suite::Trajectory;
 use memory::{Policy, PolicyKind};
 use model::{Model, Sampler};
@@ -219,7 +220,7 @@ pub fn run(o: &Options) -> Result<()> {
         progress.finish();
         let mut fvd = Vec::new();
         if let Some(net) = &fvd_net {
-            for (task, range) in cells_of(&trajs) {
+            for (task, range) in cells_of(&trajs.iter().map(|t| (t.entry.task.clone(), t.entry.range)).collect::<Vec<_>>()) {
                 let idx: Vec<usize> = (0..trajs.len()).filter(|&i| trajs[i].entry.task == task && trajs[i].entry.range == range).collect();
                 let t: Vec<&Trajectory> = idx.iter().map(|&i| &trajs[i]).collect();
                 let s: Vec<_> = idx.iter().map(|&i| &output.scores[i]).collect();
@@ -235,13 +236,14 @@ pub fn run(o: &Options) -> Result<()> {
         std::fs::rename(&tmp, &path)?;
         results.push((row.name.clone(), saved));
     }
-    let summary = summarise(&trajs, &results);
+    let cells: Vec<(String, i32)> = trajs.iter().map(|t| (t.entry.task.clone(), t.entry.range)).collect();
+    let scores: Vec<(&str, &[Vec<FrameScore>])> = results.iter().map(|(n, r)| (n.as_str(), r.frames.as_slice())).collect();
+    let summary = summarise(&cells, &scores);
     print(&summary);
     let against = o.against.clone().unwrap_or_else(|| results[0].0.clone());
     if !results.iter().any(|(n, _)| *n == against) {
         bail!("--against: no row called {against:?}");
     }
-    let scores: Vec<(&str, &[Vec<FrameScore>])> = results.iter().map(|(n, r)| (n.as_str(), r.frames.as_slice())).collect();
     let pooled = eval::stats::pooled(&scores, &against, POOLED_REPS).expect("the row was checked above");
     print_pooled(&pooled, &against);
     let json = serde_json::json!({
@@ -290,84 +292,6 @@ fn print_pooled(rows: &[PooledRow], against: &str) {
         let diff = |i: &Option<Interval>, d: usize| i.as_ref().map_or("—".into(), |i| iv(i, d));
         println!("{:<28} {:>24} {:>22} {:>26} {:>26}", r.row, iv(&r.psnr, 2), iv(&r.ssim, 3), diff(&r.psnr_diff, 2), diff(&r.ssim_diff, 3));
     }
-}
-
-#[derive(Serialize)]
-struct CellRow {
-    task: String,
-    range: i32,
-    row: String,
-    trajectories: usize,
-    /// Mean and std over trajectories of each trajectory's mean.
-    psnr: (f64, f64),
-    ssim: (f64, f64),
-    #[serde(skip_serializing_if = "Option::is_none")]
-    lpips: Option<(f64, f64)>,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    dreamsim: Option<(f64, f64)>,
-}
-
-#[derive(Serialize)]
-struct Curve {
-    task: String,
-    row: String,
-    /// Mean over trajectories at each frame index of the return leg (while at least one trajectory is that long).
-    psnr: Vec<f64>,
-    ssim: Vec<f64>,
-}
-
-struct Summary {
-    cells: Vec<CellRow>,
-    curves: Vec<Curve>,
-}
-
-/// The (task, range) cells of a suite, sorted.
-fn cells_of(trajs: &[Trajectory]) -> Vec<(String, i32)> {
-    let mut keys: Vec<(String, i32)> = trajs.iter().map(|t| (t.entry.task.clone(), t.entry.range)).collect();
-    keys.sort();
-    keys.dedup();
-    keys
-}
-
-fn summarise(trajs: &[Trajectory], results: &[(String, SavedRow)]) -> Summary {
-    let keys = cells_of(trajs);
-    let mut cells = Vec::new();
-    for (task, range) in &keys {
-        let idx: Vec<usize> = (0..trajs.len()).filter(|&i| &trajs[i].entry.task == task && trajs[i].entry.range == *range).collect();
-        for (name, r) in results {
-            let per = |m: fn(&FrameScore) -> Option<f64>| -> Vec<f64> {
-                idx.iter().map(|&i| mean_std(&r.frames[i].iter().filter_map(m).collect::<Vec<_>>()).0).filter(|v| v.is_finite()).collect()
-            };
-            let optional = |m: fn(&FrameScore) -> Option<f64>| Some(per(m)).filter(|v| !v.is_empty()).map(|v| mean_std(&v));
-            cells.push(CellRow {
-                task: task.clone(),
-                range: *range,
-                row: name.clone(),
-                trajectories: idx.len(),
-                psnr: mean_std(&per(|f| Some(f.psnr))),
-                ssim: mean_std(&per(|f| Some(f.ssim))),
-                lpips: optional(|f| f.lpips),
-                dreamsim: optional(|f| f.dreamsim),
-            });
-        }
-    }
-    let mut tasks: Vec<String> = keys.iter().map(|k| k.0.clone()).collect();
-    tasks.dedup();
-    let mut curves = Vec::new();
-    for task in &tasks {
-        let idx: Vec<usize> = (0..trajs.len()).filter(|&i| &trajs[i].entry.task == task).collect();
-        for (name, r) in results {
-            let longest = idx.iter().map(|&i| r.frames[i].len()).max().unwrap_or(0);
-            let at = |j: usize, m: fn(&FrameScore) -> f64| mean_std(&idx.iter().filter_map(|&i| r.frames[i].get(j).map(m)).collect::<Vec<_>>()).0;
-            curves.push(Curve {
-                task: task.clone(),
-                row: name.clone(),
-                psnr: (0..longest).map(|j| at(j, |f| f.psnr)).collect(),
-                ssim: (0..longest).map(|j| at(j, |f| f.ssim)).collect(),
-            });
-        }
-    }
-    Summary { cells, curves }
 }
 
 fn print(s: &Summary) {

@@ -10,4 +10,5 @@ pub mod reproject;
 pub mod rollout;
 pub mod stats;
 pub mod strata;
+pub mod summary;
 pub mod suite;
