@@ -1,14 +1,20 @@
 #!/usr/bin/env bash
-# The main job: serves the REST API over the committed small model
-# (fixtures/small) and a local store (data/worldpack.redb). On first use it
-# installs ONNX Runtime (the PyPI wheel, pinned in tests/requirements.txt)
-# into .venv, where the model runtime finds it. Extra flags go to
-# `worldpack serve` (see `cargo run --release -- serve --help`).
+# The main job: serves the REST API over a committed model and a local store
+# (data/worldpack.redb). Without flags it serves what the held-out rollouts
+# recommend (docs/rollouts.md): fixtures/variants/worldpack_recipe, WorldPack
+# as the paper's Algorithm 1, 10 DDIM steps, the best learned row on the
+# 48-trajectory test suite. With flags, they all go to `worldpack serve` as
+# given (its own defaults: fixtures/small, 16 ancestral steps; see
+# `cargo run --release -- serve --help`). On first use it installs ONNX
+# Runtime (the PyPI wheel, pinned in tests/requirements.txt) into .venv.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 if ! ls .venv/lib/python3*/site-packages/onnxruntime/capi/libonnxruntime.so* >/dev/null 2>&1; then
   echo "==> installing ONNX Runtime into .venv (first run only)"
   [ -x .venv/bin/python ] || python3 -m venv .venv
   .venv/bin/python -m pip install --disable-pip-version-check -q "$(grep '^onnxruntime==' tests/requirements.txt)"
+fi
+if [ $# -eq 0 ]; then
+  set -- --model fixtures/variants/worldpack_recipe --policy worldpack --method ddim --steps 10
 fi
 exec cargo run --release --bin worldpack -- serve "$@"
