@@ -189,6 +189,8 @@ pub fn run(o: &Options) -> Result<()> {
 
     let per_row: usize = trajs.iter().map(|t| rollout_frames(t, o.max_frames).len()).sum();
     eprintln!("eval: {} trajectories, {} generated frames per row, {} rows, {} {:?} steps", trajs.len(), per_row, rows.len(), o.steps, o.method);
+    // Each trajectory's (task, range) cell, for the FVD cells and the summaries.
+    let cells: Vec<(String, i32)> = trajs.iter().map(|t| (t.entry.task.clone(), t.entry.range)).collect();
     let mut results: Vec<(String, SavedRow)> = Vec::new();
     for (row, m) in &rows {
         let key = RowKey {
@@ -220,7 +222,7 @@ pub fn run(o: &Options) -> Result<()> {
         progress.finish();
         let mut fvd = Vec::new();
         if let Some(net) = &fvd_net {
-            for (task, range) in cells_of(&trajs.iter().map(|t| (t.entry.task.clone(), t.entry.range)).collect::<Vec<_>>()) {
+            for (task, range) in cells_of(&cells) {
                 let idx: Vec<usize> = (0..trajs.len()).filter(|&i| trajs[i].entry.task == task && trajs[i].entry.range == range).collect();
                 let t: Vec<&Trajectory> = idx.iter().map(|&i| &trajs[i]).collect();
                 let s: Vec<_> = idx.iter().map(|&i| &output.scores[i]).collect();
@@ -236,7 +238,6 @@ pub fn run(o: &Options) -> Result<()> {
         std::fs::rename(&tmp, &path)?;
         results.push((row.name.clone(), saved));
     }
-    let cells: Vec<(String, i32)> = trajs.iter().map(|t| (t.entry.task.clone(), t.entry.range)).collect();
     let scores: Vec<(&str, &[Vec<FrameScore>])> = results.iter().map(|(n, r)| (n.as_str(), r.frames.as_slice())).collect();
     let summary = summarise(&cells, &scores);
     print(&summary);

@@ -311,7 +311,7 @@ async fn step(State(st): St, id: Result<Path<u64>, PathRejection>, headers: Head
         let o = st2.engine.step(&mut s, &req.action, pose, &sampler, req.seed)?;
         let [select, sample, decode, store] = o.timings_ms;
         Ok(json!({
-            "session": s.id, "index": o.index, "time": o.time, "pose": pose_json(&o.pose), "source": "generated",
+            "session": s.id, "index": o.index, "time": o.time, "pose": pose_json(&o.pose), "source": crate::session::GENERATED,
             "image_png": B64.encode(&o.png), "steps": sampler.len(), "provider": st2.engine.model.as_ref().map(|m| m.provider()),
             "selection": { "plan": plan_json(&s.policy, &o.plan), "layout": o.layout, "exact_evaluations": o.exact_evaluations },
             "timings_ms": { "select": select, "sample": sample, "decode": decode, "store": store },

@@ -76,7 +76,7 @@ pub struct RowOutput {
 /// The noise seed of trajectory `traj`'s frame `t`: the same whatever the
 /// batch, so a rollout does not depend on how trajectories are grouped.
 pub fn frame_seed(seed: u64, traj: usize, t: usize) -> u64 {
-    seed ^ (t as u64).wrapping_mul(0x9e37_79b9_7f4a_7c15) ^ (traj as u64).wrapping_mul(0xd1b5_4a32_d192_ed03)
+    crate::probe::target_seed(seed, t) ^ (traj as u64).wrapping_mul(0xd1b5_4a32_d192_ed03)
 }
 
 /// One row's rollouts over `trajs`. `observed_latents[i]` holds trajectory

@@ -13,6 +13,15 @@ fn reference(name: &str) -> Tensor {
     Tensor::new(shape, data)
 }
 
+/// The committed small model and the worldpack layout's reference conditioning (a batch of 2).
+fn small_model_and_reference_conditioning() -> (Model, Vec<(String, Tensor)>, Tensor, Tensor) {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../fixtures/small");
+    let m = Model::load(&dir, RuntimeOptions { provider: Provider::Cpu, threads: 1 }).unwrap();
+    let layout = m.manifest().layout("worldpack").unwrap();
+    let context = layout.inputs.iter().filter(|s| s.name.starts_with("context")).map(|s| (s.name.clone(), reference(&s.name))).collect();
+    (m, context, reference("action"), reference("rel_time"))
+}
+
 #[test]
 fn gaussian_noise_is_seeded_and_standard() {
     let a = gaussian(7, 100_001);
@@ -25,11 +34,7 @@ fn gaussian_noise_is_seeded_and_standard() {
 
 #[test]
 fn sampling_is_seeded_and_finite() {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../fixtures/small");
-    let m = Model::load(&dir, RuntimeOptions { provider: Provider::Cpu, threads: 1 }).unwrap();
-    let layout = m.manifest().layout("worldpack").unwrap();
-    let context: Vec<(String, Tensor)> = layout.inputs.iter().filter(|s| s.name.starts_with("context")).map(|s| (s.name.clone(), reference(&s.name))).collect();
-    let (action, rel_time) = (reference("action"), reference("rel_time"));
+    let (m, context, action, rel_time) = small_model_and_reference_conditioning();
     let cond = Conditioning { context: &context, action: &action, rel_time: &rel_time };
     let sampler = Sampler::new(&m.manifest().diffusion, 3, Method::Ancestral, 0.0).unwrap();
     let a = m.sample("worldpack", &cond, &sampler, &[1, 2]).unwrap();
@@ -58,11 +63,7 @@ fn item(context: &[(String, Tensor)], action: &Tensor, rel_time: &Tensor, i: usi
 
 #[test]
 fn a_frame_does_not_depend_on_its_batch() {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../fixtures/small");
-    let m = Model::load(&dir, RuntimeOptions { provider: Provider::Cpu, threads: 1 }).unwrap();
-    let layout = m.manifest().layout("worldpack").unwrap();
-    let context: Vec<(String, Tensor)> = layout.inputs.iter().filter(|s| s.name.starts_with("context")).map(|s| (s.name.clone(), reference(&s.name))).collect();
-    let (action, rel_time) = (reference("action"), reference("rel_time"));
+    let (m, context, action, rel_time) = small_model_and_reference_conditioning();
     let sampler = Sampler::new(&m.manifest().diffusion, 4, Method::Ancestral, 0.0).unwrap();
     let both = m.sample("worldpack", &Conditioning { context: &context, action: &action, rel_time: &rel_time }, &sampler, &[11, 12]).unwrap();
     let per = both.data.len() / 2;
