@@ -9,7 +9,10 @@
 #   RECIPE="--context-noise 0.7 --generated-level 0.3" ./scripts/recipe.sh train baseline_continued
 #   ./scripts/recipe.sh train worldpack
 #   SUITE=data/loopnav-test ./scripts/recipe.sh eval
-# Needs data/train plans (worldpack plan --memory-need) and runs/base/latents.
+# From a fresh clone, `./scripts/recipe.sh prepare` makes what the others need:
+# the first 120 training trajectories with plans and memory need (data/train120),
+# the validation suite (data/val, seed 5), the test suite (data/loopnav-test,
+# seed 6), the committed baseline recovered into runs/base and the latent cache.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 data="${DATA:-data/train120}"
@@ -21,8 +24,26 @@ base=runs/base
 bin=target/release/worldpack
 
 # name -> the policy whose plans it trains on, and options beyond the recipe.
-declare -A policy=([baseline_continued]=baseline [worldpack]=worldpack [nearest_frame_packing]=nearest_frame_packing)
-declare -A extra=([baseline_continued]="" [worldpack]="--memory-focus 0.5" [nearest_frame_packing]="--memory-focus 0.5")
+declare -A policy=([baseline_continued]=baseline [worldpack]=worldpack [nearest_frame_packing]=nearest_frame_packing
+                   [memory_retrieval]=memory_retrieval)
+declare -A extra=([baseline_continued]="" [worldpack]="--memory-focus 0.5" [nearest_frame_packing]="--memory-focus 0.5"
+                  [memory_retrieval]="--memory-focus 0.5")
+
+suite() {  # suite DIR SEED: a held-out LoopNav-style suite with its plans
+  [ -f "$1/index.json" ] || { "$bin" sim loopnav --per-cell "$3" --seed "$2" --out "$1" && "$bin" plan --data "$1"; }
+}
+
+prepare() {
+  [ -x "$bin" ] || cargo build --release --bin worldpack
+  if [ ! -f "$data/index.json" ]; then
+    # Trajectory i of `sim dataset` depends only on i, so these are data/train's first 120.
+    "$bin" sim dataset --trajectories 120 --out "$data" && "$bin" plan --data "$data" --memory-need
+  fi
+  suite data/val 5 2
+  suite data/loopnav-test 6 6
+  [ -f "$base/cdit-baseline.pt" ] || ./scripts/model.sh recover --model fixtures/variants/baseline --run "$base"
+  ./scripts/model.sh encode --data "$data" --run "$base" --threads "$threads"
+}
 
 train() {
   local name=$1 run="$out/$1"
@@ -51,14 +72,15 @@ PY
 }
 
 case "${1:-}" in
+  prepare) prepare ;;
   train) shift; for name in "$@"; do train "$name"; done ;;
   eval)
     suite="${SUITE:-data/val}"
     args=(--suite "$suite" --models fixtures/variants --policies baseline --threads "${EVAL_THREADS:-2}" --out "$out/eval-$(basename "$suite")")
-    for name in baseline_continued nearest_frame_packing worldpack; do
+    for name in baseline_continued nearest_frame_packing memory_retrieval worldpack; do
       m="$out/$name/model/${policy[$name]}"
       [ -f "$m/manifest.json" ] && args+=(--extra "${name}_recipe=$m")
     done
     "$bin" eval "${args[@]}" "${@:2}" ;;
-  *) echo "usage: $0 train NAME... | eval [eval flags]" >&2; exit 2 ;;
+  *) echo "usage: $0 prepare | train NAME... | eval [eval flags]" >&2; exit 2 ;;
 esac

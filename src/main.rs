@@ -6,7 +6,6 @@ mod bench_store;
 mod bench_step;
 mod cli;
 mod demo;
-mod digest;
 mod eval;
 mod geometry;
 mod plan;

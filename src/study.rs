@@ -27,8 +27,8 @@ use memory::{Estimator, Policy, PolicyKind};
 use model::{Method, Model, RuntimeOptions, Sampler};
 use serde::{Deserialize, Serialize};
 
-use crate::digest::{FNV_START, fnv1a, model_key};
-use crate::probe::{VARIANTS, load, trained_policy, variant_policy};
+use eval::digest::{FNV_START, fnv1a, model_key};
+use eval::memory_probe::{VARIANTS, variant_policy};
 use crate::cli::{Runtime, count, parse_method, parse_named_path};
 use crate::sim::bar;
 
@@ -257,7 +257,7 @@ pub fn run(o: &Options) -> Result<()> {
     }
     for (name, _) in &o.extra {
         let model = model_index(name);
-        clean.push(RowSpec { name: name.clone(), group: Group::Size, what: What::Model { model, policy: trained_policy(&models[model].1), steps: o.steps } });
+        clean.push(RowSpec { name: name.clone(), group: Group::Size, what: What::Model { model, policy: models[model].1.trained_policy(), steps: o.steps } });
     }
     clean.extend(references.clone());
 
@@ -274,7 +274,7 @@ pub fn run(o: &Options) -> Result<()> {
         conditions.push(Condition { name, change, rows, timed: false });
     }
 
-    let model_keys: Vec<String> = models.iter().map(|(_, m)| model_key(m.dir())).collect::<Result<_>>()?;
+    let model_keys: Vec<String> = models.iter().map(|(_, m)| model_key(m.dir())).collect::<Result<_, _>>()?;
     let dir = o.out.join("conditions");
     std::fs::create_dir_all(&dir).with_context(|| format!("--out {}", o.out.display()))?;
     let targets: usize = trajectories.iter().map(|t| t.return_frames(o.stride).len()).sum();
@@ -768,4 +768,8 @@ fn print(s: &Summary) {
             println!("  {:<28} {:>7.2}  {:>24}  vs NFP {}", r.row, r.psnr, vs(&r.psnr_vs_baseline), vs(&r.psnr_vs_recency));
         }
     }
+}
+
+fn load(dir: &Path, runtime: model::RuntimeOptions) -> Result<Model> {
+    Model::load(dir, runtime).with_context(|| format!("loading the model in {}", dir.display()))
 }

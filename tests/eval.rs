@@ -64,6 +64,9 @@ fn reduced_rollout_suite_runs_resumes_and_scores_every_frame() {
                 let (psnr, ssim) = (f["psnr"].as_f64().unwrap(), f["ssim"].as_f64().unwrap());
                 assert!(psnr > 5.0 && psnr <= 100.0, "{name}: PSNR {psnr}");
                 assert!(ssim > -1.0 && ssim <= 1.0, "{name}: SSIM {ssim}");
+                // Every synthetic truth has edges, so every frame has a sharpness ratio.
+                let sharpness = f["sharpness"].as_f64().unwrap_or_else(|| panic!("{name}: no sharpness in {f}"));
+                assert!(sharpness > 0.0 && sharpness.is_finite(), "{name}: sharpness {sharpness}");
             }
         }
     }
@@ -71,6 +74,20 @@ fn reduced_rollout_suite_runs_resumes_and_scores_every_frame() {
     assert_ne!(first["per_frame"]["copy"], first["per_frame"]["worldpack"]);
     // Policies with other contexts generate other frames.
     assert_ne!(first["per_frame"]["baseline"], first["per_frame"]["worldpack"]);
+    // Pooled sharpness is the mean of the per-frame ratios.
+    let pooled = first["pooled"].as_array().unwrap();
+    let copy = pooled.iter().find(|r| r["row"] == "copy").unwrap();
+    let ratios: Vec<f64> = first["per_frame"]["copy"].as_array().unwrap().iter().flat_map(|t| t.as_array().unwrap().iter().map(|f| f["sharpness"].as_f64().unwrap())).collect();
+    let mean = ratios.iter().sum::<f64>() / ratios.len() as f64;
+    assert!((copy["sharpness"]["mean"].as_f64().unwrap() - mean).abs() < 1e-9, "{copy}");
+    // The revisit stratum keeps a subset of the frames, the same for every row.
+    let revisit = &first["strata"][0];
+    assert_eq!(revisit["name"], "revisit");
+    let frames = revisit["frames"].as_u64().unwrap();
+    assert!(frames <= 10, "{revisit}");
+    for r in revisit["pooled"].as_array().unwrap() {
+        assert_eq!(r["psnr"]["values"].as_u64().unwrap(), frames, "{r}");
+    }
 
     // A second run reuses every row and reproduces the results.
     let log = ok(&args);
@@ -261,7 +278,8 @@ fn study_pairs_every_condition_and_resumes() {
     }
 
     let strata = study["strata"].as_array().unwrap();
-    assert_eq!(strata.len(), 5);
+    assert_eq!(strata.len(), 6);
+    assert_eq!(strata[5]["stratum"], "revisit");
     assert_eq!(strata[0]["stratum"], "all");
     assert_eq!(strata[0]["targets"], study["targets"]);
     assert!(strata.iter().all(|s| s["targets"].as_u64().unwrap() <= study["targets"].as_u64().unwrap()));

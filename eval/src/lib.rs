@@ -2,10 +2,14 @@
 //! intervals, the depth-reprojection reference, suite reading, and the
 //! teacher-forced memory probe (see docs/probe.md).
 
+pub mod digest;
+pub mod evaluate;
 pub mod features;
+pub mod memory_probe;
 pub mod metrics;
 pub mod noise;
 pub mod probe;
+pub mod program;
 pub mod reproject;
 pub mod rollout;
 pub mod stats;

@@ -19,6 +19,37 @@ pub fn psnr(a: &[u8], b: &[u8]) -> f64 {
     if mse == 0.0 { PSNR_CAP_DB } else { (10.0 * (255.0 * 255.0 / mse).log10()).min(PSNR_CAP_DB) }
 }
 
+/// Mean squared difference between neighbouring pixels (right and down) of
+/// an interleaved RGB image's luma: how much edge a frame carries. Blur
+/// lowers it, so a prediction's energy over the truth's tells a sharp frame
+/// from a smooth one that happens to score well on PSNR.
+pub fn gradient_energy(rgb: &[u8], width: usize, height: usize) -> f64 {
+    assert_eq!(rgb.len(), width * height * 3, "gradient_energy: not an RGB image of the given size");
+    let luma: Vec<f64> = rgb.chunks_exact(3).map(|p| 0.299 * p[0] as f64 + 0.587 * p[1] as f64 + 0.114 * p[2] as f64).collect();
+    let (mut sum, mut n) = (0.0, 0usize);
+    for y in 0..height {
+        for x in 0..width {
+            let v = luma[y * width + x];
+            if x + 1 < width {
+                sum += (luma[y * width + x + 1] - v).powi(2);
+                n += 1;
+            }
+            if y + 1 < height {
+                sum += (luma[(y + 1) * width + x] - v).powi(2);
+                n += 1;
+            }
+        }
+    }
+    if n == 0 { 0.0 } else { sum / n as f64 }
+}
+
+/// The prediction's gradient energy over the truth's: 1 as sharp as the
+/// truth, below 1 blurrier, above 1 noisier. `None` for a flat truth.
+pub fn sharpness_ratio(predicted: &[u8], truth: &[u8], width: usize, height: usize) -> Option<f64> {
+    let reference = gradient_energy(truth, width, height);
+    (reference > 0.0).then(|| gradient_energy(predicted, width, height) / reference)
+}
+
 fn gaussian_window() -> [f64; WINDOW] {
     let mut w = [0.0; WINDOW];
     let c = (WINDOW / 2) as f64;
@@ -117,5 +148,19 @@ mod tests {
         let k = gaussian_window();
         assert!((k.iter().sum::<f64>() - 1.0).abs() < 1e-12);
         assert!((0..WINDOW).all(|i| (k[i] - k[WINDOW - 1 - i]).abs() < 1e-15));
+    }
+
+    #[test]
+    fn blur_lowers_the_sharpness_ratio_and_a_flat_truth_has_none() {
+        let (w, h) = (16, 8);
+        // Vertical stripes of 0 and 200: every horizontal step is 200 in every channel.
+        let stripes: Vec<u8> = (0..w * h).flat_map(|i| [if i % 2 == 0 { 0 } else { 200 }; 3]).collect();
+        assert!((gradient_energy(&stripes, w, h) - 200.0f64.powi(2) * (h * (w - 1)) as f64 / (h * (w - 1) + w * (h - 1)) as f64).abs() < 1e-9);
+        // A 2-pixel box blur halves nothing but the contrast: steps of 100 where there were 200.
+        let blurred: Vec<u8> = (0..w * h).flat_map(|i| [if i % 2 == 0 { 50 } else { 150 }; 3]).collect();
+        let r = sharpness_ratio(&blurred, &stripes, w, h).unwrap();
+        assert!((r - 0.25).abs() < 1e-9, "{r}");
+        assert_eq!(sharpness_ratio(&stripes, &stripes, w, h), Some(1.0));
+        assert_eq!(sharpness_ratio(&stripes, &vec![7u8; w * h * 3], w, h), None);
     }
 }

@@ -11,7 +11,7 @@ use model::pack::ContextFrame;
 use model::{Model, ModelError, Request, Sampler, Tensor};
 use serde::Serialize;
 
-use crate::metrics::{psnr, ssim};
+use crate::metrics::{psnr, sharpness_ratio, ssim};
 use crate::reproject::reproject;
 use crate::suite::{SuiteError, Trajectory};
 
@@ -65,6 +65,25 @@ pub struct FrameScore {
     pub lpips: Option<f64>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub dreamsim: Option<f64>,
+    /// Gradient energy of the prediction over the truth's
+    /// ([`crate::metrics::sharpness_ratio`]); absent for a flat truth and in
+    /// scores saved before it was measured.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sharpness: Option<f64>,
+}
+
+impl FrameScore {
+    /// PSNR, SSIM and sharpness of `predicted` against `truth` (RGB, `w`×`h`); no feature-network scores.
+    pub fn of(t: usize, predicted: &[u8], truth: &[u8], w: usize, h: usize) -> FrameScore {
+        FrameScore {
+            t,
+            psnr: psnr(predicted, truth),
+            ssim: ssim(predicted, truth, w, h).unwrap_or(f64::NAN),
+            lpips: None,
+            dreamsim: None,
+            sharpness: sharpness_ratio(predicted, truth, w, h),
+        }
+    }
 }
 
 /// One trajectory's scores: `rows[i]` belongs to the i-th row, frames in the
@@ -197,7 +216,7 @@ pub fn probe_trajectory(
     let (w, h) = (traj.intrinsics.width as usize, traj.intrinsics.height as usize);
     let score = |t: usize, predicted: &[u8]| {
         let truth = traj.frame(t);
-        FrameScore { t, psnr: psnr(predicted, truth), ssim: ssim(predicted, truth, w, h).unwrap_or(f64::NAN), lpips: None, dreamsim: None }
+        FrameScore::of(t, predicted, truth, w, h)
     };
     let mut scores = Vec::with_capacity(rows.len());
     for (row, plans) in rows.iter().zip(&plans) {

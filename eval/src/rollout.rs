@@ -9,7 +9,6 @@ use model::pack::ContextFrame;
 use model::Request;
 
 use crate::features::{Embedding, FeatureError, Lpips, VideoFeatures, frechet_distance};
-use crate::metrics::{psnr, ssim};
 use crate::probe::{FrameScore, Predictor, ProbeError, Row, best_overlap_policy, reference_image};
 use crate::suite::Trajectory;
 
@@ -62,7 +61,7 @@ impl Scorer<'_> {
             Some(n) => Some(n.distances(&[predicted], &[truth], w, h).map_err(feature)?[0]),
             None => None,
         };
-        Ok(FrameScore { t, psnr: psnr(predicted, truth), ssim: ssim(predicted, truth, w, h).unwrap_or(f64::NAN), lpips, dreamsim })
+        Ok(FrameScore { lpips, dreamsim, ..FrameScore::of(t, predicted, truth, w, h) })
     }
 }
 

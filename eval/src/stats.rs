@@ -80,6 +80,9 @@ pub struct PooledRow {
     /// This row minus the reference row, frame by frame, pooled (absent for the reference itself).
     pub psnr_diff: Option<Interval>,
     pub ssim_diff: Option<Interval>,
+    /// The mean sharpness ratio (prediction's gradient energy over the
+    /// truth's) over the frames that have one; absent when none has.
+    pub sharpness: Option<Interval>,
 }
 
 /// Pooled PSNR and SSIM of each row (per trajectory, per frame; every row
@@ -107,6 +110,8 @@ pub fn pooled(rows: &[(&str, &[Vec<FrameScore>])], against: &str, reps: usize) -
                     ssim_trajectory_weighted: trajectory_mean(&q),
                     psnr_diff: (!own).then(|| cluster_bootstrap(&paired(r, psnr), reps, 7)),
                     ssim_diff: (!own).then(|| cluster_bootstrap(&paired(r, ssim), reps, 7)),
+                    sharpness: Some(cluster_bootstrap(&r.iter().map(|t| t.iter().filter_map(|f| f.sharpness).collect()).collect::<Vec<_>>(), reps, 7))
+                        .filter(|i| i.values > 0),
                 }
             })
             .collect(),
@@ -158,7 +163,7 @@ mod tests {
 
     #[test]
     fn pooled_rows_pair_frames_and_weigh_trajectories() {
-        let score = |t: usize, psnr: f64| FrameScore { t, psnr, ssim: psnr / 100.0, lpips: None, dreamsim: None };
+        let score = |t: usize, psnr: f64| FrameScore { t, psnr, ssim: psnr / 100.0, lpips: None, dreamsim: None, sharpness: None };
         // Two trajectories, of 3 frames and 1 frame; the second row is 1 dB better on every frame.
         let a = vec![vec![score(0, 10.0), score(1, 10.0), score(2, 10.0)], vec![score(0, 20.0)]];
         let b: Vec<Vec<FrameScore>> = a.iter().map(|t| t.iter().map(|f| score(f.t, f.psnr + 1.0)).collect()).collect();
@@ -169,5 +174,9 @@ mod tests {
         let d = rows[1].psnr_diff.as_ref().unwrap();
         assert!((d.mean - 1.0).abs() < 1e-12 && (d.lo - 1.0).abs() < 1e-12 && (d.hi - 1.0).abs() < 1e-12, "{d:?}");
         assert!(pooled(&[("a", &a)], "missing", 10).is_none());
+        assert!(rows[0].sharpness.is_none(), "no frame has a sharpness ratio");
+        let sharp: Vec<Vec<FrameScore>> = a.iter().map(|t| t.iter().map(|f| FrameScore { sharpness: Some(0.5), ..*f }).collect()).collect();
+        let s = pooled(&[("a", &sharp)], "a", 10).unwrap()[0].sharpness.unwrap();
+        assert_eq!((s.mean, s.values), (0.5, 4));
     }
 }

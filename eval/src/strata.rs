@@ -32,10 +32,17 @@ pub struct TargetFeatures {
     /// angle (degrees) between their view and the target's (`None`: no
     /// exploration frame that close).
     pub revisit_angle_deg: Option<f64>,
+    /// Share of the target's surface points that some exploration frame
+    /// shows ([`explored_share`]): how much of this view the agent has seen.
+    pub explored: f64,
 }
 
 pub const RECENT_FRAMES: usize = 4;
 pub const REVISIT_RADIUS: f64 = 3.0;
+/// Pixel stride of [`explored_share`]'s surface points (as `plan --memory-need`'s).
+pub const EXPLORED_STRIDE: usize = 4;
+/// The explored share from which a target is a revisit.
+pub const REVISIT_SHARE: f64 = 0.5;
 
 /// The groups the report breaks results into. Thresholds were fixed before
 /// looking at any model's scores.
@@ -50,10 +57,13 @@ pub enum Stratum {
     OppositeRevisit,
     /// That memory-only content is best shown by a frame 100 or more frames old.
     LongHorizon,
+    /// At least half of the view was seen during exploration: where memory can bring the scene back.
+    Revisit,
 }
 
 impl Stratum {
-    pub const ALL: [Stratum; 5] = [Stratum::All, Stratum::MemoryDependent, Stratum::Occluded, Stratum::OppositeRevisit, Stratum::LongHorizon];
+    pub const ALL: [Stratum; 6] =
+        [Stratum::All, Stratum::MemoryDependent, Stratum::Occluded, Stratum::OppositeRevisit, Stratum::LongHorizon, Stratum::Revisit];
 
     pub fn name(self) -> &'static str {
         match self {
@@ -62,6 +72,7 @@ impl Stratum {
             Stratum::Occluded => "occluded",
             Stratum::OppositeRevisit => "opposite_revisit",
             Stratum::LongHorizon => "long_horizon",
+            Stratum::Revisit => "revisit",
         }
     }
 
@@ -72,6 +83,7 @@ impl Stratum {
             Stratum::Occluded => "≥ 30% of the best-overlap frame's in-view points are hidden in it",
             Stratum::OppositeRevisit => "within 3 blocks of an explored pose, none facing within 90°",
             Stratum::LongHorizon => "memory-dependent, and the frame showing most of that memory is ≥ 100 frames old",
+            Stratum::Revisit => "≥ 50% of the view was seen by an exploration frame",
         }
     }
 
@@ -82,6 +94,7 @@ impl Stratum {
             Stratum::Occluded => f.occluded.is_some_and(|o| o >= 0.3),
             Stratum::OppositeRevisit => f.revisit_angle_deg.is_some_and(|a| a > 90.0),
             Stratum::LongHorizon => f.memory_only >= 0.1 && f.memory_age.is_some_and(|a| a >= 100),
+            Stratum::Revisit => f.explored >= REVISIT_SHARE,
         }
     }
 }
@@ -184,7 +197,8 @@ pub fn features(traj: &Trajectory, targets: &[usize]) -> Result<Vec<TargetFeatur
                 .filter(|&&i| i < t && traj.poses[i].position().distance(here.position()) <= REVISIT_RADIUS)
                 .map(|&i| traj.poses[i].forward().angle_between(here.forward()).to_degrees())
                 .reduce(f64::min);
-            out.push(TargetFeatures { t, recent_visible, memory_only, memory_age, occluded: src.and_then(|s| occluded_share(traj, s, &points)), revisit_angle_deg });
+            let explored = explored_share(traj, &frusta, t, EXPLORED_STRIDE);
+            out.push(TargetFeatures { t, recent_visible, memory_only, memory_age, occluded: src.and_then(|s| occluded_share(traj, s, &points)), revisit_angle_deg, explored });
         }
         if next.peek().is_none() {
             break;
@@ -194,6 +208,20 @@ pub fn features(traj: &Trajectory, targets: &[usize]) -> Result<Vec<TargetFeatur
             .expect("frame ids are new and increasing");
     }
     Ok(out)
+}
+
+/// Share of frame `t`'s surface points (every `stride`-th row and column)
+/// that at least one earlier exploration frame shows; 0 when it has none.
+/// Every frame of a rollout's return leg is generated, so this is what an
+/// observed memory could bring back.
+pub fn explored_share(traj: &Trajectory, frusta: &[memory::Frustum], t: usize, stride: usize) -> f64 {
+    let points = surface_points(traj, t, stride);
+    if points.is_empty() {
+        return 0.0;
+    }
+    let explored: Vec<usize> = (0..t).filter(|&i| traj.phase[i] != RETURN_PHASE && frusta[i].aabb().intersects(frusta[t].aabb())).collect();
+    let seen = points.iter().filter(|&&p| explored.iter().any(|&i| sight(traj, i, p) == Sight::Visible)).count();
+    seen as f64 / points.len() as f64
 }
 
 /// Every frame's share of its view that only frames older than the
@@ -255,6 +283,9 @@ mod tests {
         assert_eq!(f.occluded, Some(0.0));
         assert_eq!(f.revisit_angle_deg, Some(0.0));
         assert!(Stratum::MemoryDependent.contains(&f) && !Stratum::LongHorizon.contains(&f) && !Stratum::OppositeRevisit.contains(&f));
+        // Frames 0–1 (exploration) saw the whole wall.
+        assert_eq!(f.explored, 1.0);
+        assert!(Stratum::Revisit.contains(&f));
     }
 
     #[test]
@@ -267,6 +298,26 @@ mod tests {
         // Only frame 0 still shows the wall.
         assert_eq!(f.memory_age, Some(6));
         assert_eq!(f.memory_only, 1.0);
+    }
+
+    #[test]
+    fn a_view_no_exploration_frame_showed_is_not_a_revisit() {
+        let mut traj = turn_away_and_back(false);
+        // Frames 0–1 face the wall but belong to the return leg now: nothing explored shows it.
+        traj.phase = vec![RETURN_PHASE; 7];
+        let f = features(&traj, &[6]).unwrap()[0];
+        assert_eq!(f.explored, 0.0);
+        assert!(!Stratum::Revisit.contains(&f));
+        // Half the wall hidden behind a nearer surface in frame 1 (the only explored frame facing it)
+        // leaves half of the view explored.
+        let mut traj = turn_away_and_back(true);
+        traj.phase[0] = RETURN_PHASE;
+        let n = 16 * 16;
+        for d in &mut traj.depth_mm[n..n + n / 2] {
+            *d = 5000;
+        }
+        let share = explored_share(&traj, &traj.frusta().unwrap(), 6, 1);
+        assert_eq!(share, 0.5);
     }
 
     #[test]

@@ -55,6 +55,18 @@ impl Model {
         &self.manifest
     }
 
+    /// The context policy the weights were trained with: the manifest's
+    /// `training.policy` (a [`memory::variant`] name), scoring against the
+    /// view its plans were made with. Models exported before plans recorded
+    /// their query were all trained with the target-pose query; a manifest
+    /// that names no variant gets the paper's WorldPack.
+    pub fn trained_policy(&self) -> memory::Policy {
+        let paper = || memory::Policy::preset(memory::PolicyKind::WorldPack);
+        let Some(training) = self.manifest.training.as_ref() else { return paper() };
+        let Ok(variant) = memory::variant(&training.policy) else { return paper() };
+        memory::Policy { query: training.plans_query.unwrap_or(memory::Query::Target), ..variant.policy() }
+    }
+
     /// Marks generated context frames with `level` instead of the manifest's
     /// level (to choose it on a validation suite).
     pub fn set_generated_level(&mut self, level: f32) -> Result<(), ModelError> {

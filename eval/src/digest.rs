@@ -3,8 +3,6 @@
 
 use std::path::Path;
 
-use anyhow::{Context, Result};
-
 /// 64-bit FNV-1a, continuing from `h` (start from [`FNV_START`]).
 pub fn fnv1a(mut h: u64, bytes: &[u8]) -> u64 {
     for &b in bytes {
@@ -18,9 +16,10 @@ pub const FNV_START: u64 = 0xcbf2_9ce4_8422_2325;
 /// A model folder's path and a digest of the files directly in it (manifest,
 /// graphs, weights; not `reference/`), in name order: re-exported weights at
 /// the same path get a new key.
-pub fn model_key(dir: &Path) -> Result<String> {
+pub fn model_key(dir: &Path) -> Result<String, std::io::Error> {
+    let reading = |p: &Path, e: std::io::Error| std::io::Error::new(e.kind(), format!("reading {}: {e}", p.display()));
     let mut files: Vec<_> = std::fs::read_dir(dir)
-        .with_context(|| format!("reading {}", dir.display()))?
+        .map_err(|e| reading(dir, e))?
         .filter_map(|e| e.ok().map(|e| e.path()))
         .filter(|p| p.is_file())
         .collect();
@@ -28,7 +27,7 @@ pub fn model_key(dir: &Path) -> Result<String> {
     let mut h = FNV_START;
     for f in files {
         h = fnv1a(h, f.file_name().unwrap_or_default().as_encoded_bytes());
-        h = fnv1a(h, &std::fs::read(&f).with_context(|| format!("reading {}", f.display()))?);
+        h = fnv1a(h, &std::fs::read(&f).map_err(|e| reading(&f, e))?);
     }
     Ok(format!("{} #{h:016x}", dir.display()))
 }

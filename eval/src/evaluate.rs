@@ -1,0 +1,324 @@
+//! The evaluation program behind `worldpack eval`: LoopNav-style
+//! autoregressive rollouts of the return legs for every policy with its own
+//! weights, extra models, and the non-learned references; per-cell means,
+//! per-frame curves, pooled figures with paired intervals, the revisit
+//! stratum and the sharpness ratio, written to `results.json`. Each row is
+//! saved as it finishes (keyed by a digest of the model files and every
+//! setting that fixes its numbers), so an interrupted run resumes where it
+//! stopped and a rerun with the same settings recomputes nothing.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use memory::{Policy, PolicyKind};
+use model::{Method, Model, RuntimeOptions, Sampler};
+use serde::{Deserialize, Serialize};
+
+use crate::digest::model_key;
+use crate::features::{Embedding, Lpips, VideoFeatures};
+use crate::probe::{FrameScore, Predictor, Row, encode_all};
+use crate::program::{ProgramError, io, load_model, setting, write_atomically};
+use crate::rollout::{FvdEstimate, Scorer, clip_fvd, rollout, rollout_frames};
+use crate::stats::{PooledRow, pooled};
+use crate::strata::{EXPLORED_STRIDE, REVISIT_SHARE, Stratum, explored_share};
+use crate::suite::Trajectory;
+use crate::summary::{Summary, cells_of, summarise};
+
+/// What one evaluation run does; `worldpack eval`'s flags, one field each.
+#[derive(Clone, Debug)]
+pub struct Settings {
+    /// A suite from `worldpack sim loopnav`.
+    pub suite: PathBuf,
+    /// A folder of variant model folders, one per policy's weights.
+    pub models: PathBuf,
+    pub policies: Vec<PolicyKind>,
+    /// Also the copy and reproject references.
+    pub references: bool,
+    pub steps: usize,
+    pub method: Method,
+    /// Generate at most this many frames of each return leg.
+    pub max_frames: Option<usize>,
+    /// Only the first n trajectories.
+    pub limit: Option<usize>,
+    /// Trajectories generated together per denoiser call.
+    pub batch: usize,
+    pub runtime: RuntimeOptions,
+    /// rows/<row>.json as each row finishes, then results.json.
+    pub out: PathBuf,
+    pub lpips: Option<PathBuf>,
+    pub dreamsim: Option<PathBuf>,
+    pub fvd: Option<PathBuf>,
+    /// The context-noise level that marks generated frames, instead of each manifest's.
+    pub generated_level: Option<f32>,
+    /// More model rows (name, folder), each with the policy it was trained with.
+    pub extra: Vec<(String, PathBuf)>,
+    /// The row paired differences are taken against (default: the first).
+    pub against: Option<String>,
+}
+
+/// What the run is doing, for a progress display.
+pub enum Progress<'a> {
+    Started { trajectories: usize, frames_per_row: usize, rows: usize },
+    /// A row saved earlier with the same settings is reused.
+    Reused { row: &'a str, path: &'a Path },
+    RowStarted { row: &'a str, frames: usize },
+    /// `n` more frames of the current row are done.
+    Frames(usize),
+    RowDone,
+}
+
+/// Bootstrap resamples of clips for an FVD interval.
+const FVD_REPS: usize = 100;
+/// Bootstrap resamples of trajectories for the pooled intervals.
+const POOLED_REPS: usize = 4000;
+/// The base of every rollout's noise seeds.
+const ROLLOUT_SEED: u64 = 20261121;
+
+/// Which trained weights a policy runs with (memory::variants).
+pub fn weights_for(kind: PolicyKind) -> &'static str {
+    memory::variant(kind.name()).map_or(kind.name(), |v| v.weights)
+}
+
+/// How tables and charts name a row: the registry's label for a policy, a
+/// sentence for a reference, the name itself for an extra model.
+pub fn row_label(name: &str) -> String {
+    match name {
+        "copy" => "copy best-overlap observed frame".into(),
+        "reproject" => "reproject it with depth".into(),
+        _ => memory::variant(name).map_or_else(|_| name.to_string(), |v| v.label.to_string()),
+    }
+}
+
+/// What fixes a row's numbers; a saved row is reused only when it matches.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+struct RowKey {
+    row: String,
+    model: Option<String>,
+    suite: String,
+    trajectories: Vec<String>,
+    steps: usize,
+    method: String,
+    max_frames: Option<usize>,
+    /// The noise of a frame depends on which frames share its denoiser call.
+    batch: usize,
+    #[serde(default)]
+    generated_level: Option<f32>,
+    /// How noise is seeded (rows saved before per-item seeds have none, and are recomputed).
+    #[serde(default)]
+    noise_seeding: String,
+    /// The per-frame scores a row carries (rows saved before the sharpness ratio lack it, and are recomputed).
+    #[serde(default)]
+    scores: String,
+    feature_networks: [Option<String>; 3],
+}
+
+const SCORES: &str = "psnr ssim sharpness";
+
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct FvdCell {
+    pub task: String,
+    pub range: i32,
+    #[serde(flatten)]
+    pub estimate: FvdEstimate,
+}
+
+#[derive(Serialize, Deserialize)]
+struct SavedRow {
+    key: RowKey,
+    /// Per trajectory (suite order), per generated frame.
+    frames: Vec<Vec<FrameScore>>,
+    fvd: Vec<FvdCell>,
+    wall_s: f64,
+}
+
+/// One stratum of the return-leg frames, pooled like the whole suite.
+#[derive(Serialize)]
+pub struct StratumPooled {
+    pub name: &'static str,
+    pub describe: &'static str,
+    pub frames: usize,
+    pub trajectories: usize,
+    pub pooled: Vec<PooledRow>,
+}
+
+/// What a run measured (also written to `results.json`).
+pub struct Evaluation {
+    pub summary: Summary,
+    pub pooled: Vec<PooledRow>,
+    pub against: String,
+    pub revisit: StratumPooled,
+    pub results: PathBuf,
+}
+
+pub fn evaluate(s: &Settings, progress: &dyn Fn(Progress)) -> Result<Evaluation, ProgramError> {
+    if s.policies.is_empty() && !s.references && s.extra.is_empty() {
+        return Err(setting("--policies", "nothing to evaluate (name a policy, an extra model or keep the references)"));
+    }
+    let trajs = crate::suite::load(&s.suite, s.limit)?;
+    let rows_dir = s.out.join("rows");
+    std::fs::create_dir_all(&rows_dir).map_err(io(&s.out))?;
+
+    let load = |dir: &Path, what: String| load_model(dir, s.runtime, || what);
+    let mut models: BTreeMap<&str, Model> = BTreeMap::new();
+    for &kind in &s.policies {
+        let name = weights_for(kind);
+        if !models.contains_key(name) {
+            let dir = s.models.join(name);
+            let m = load(&dir, format!("--models: the {} policy runs with {}", kind.name(), dir.display()))?;
+            models.insert(name, m);
+        }
+    }
+    let feature = |what: &'static str| move |source| ProgramError::Feature { what, source };
+    let lpips = s.lpips.as_deref().map(|p| Lpips::open(p, s.runtime).map_err(feature("--lpips"))).transpose()?;
+    let dreamsim = s.dreamsim.as_deref().map(|p| Embedding::open(p, s.runtime).map_err(feature("--dreamsim"))).transpose()?;
+    let fvd_net = s.fvd.as_deref().map(|p| VideoFeatures::open(p, s.runtime).map_err(feature("--fvd"))).transpose()?;
+    let scorer = Scorer { lpips: lpips.as_ref(), dreamsim: dreamsim.as_ref(), keep_frames: fvd_net.is_some() };
+    let networks = [&s.lpips, &s.dreamsim, &s.fvd].map(|p| p.as_ref().map(|p| p.display().to_string()));
+    let mut extras = Vec::with_capacity(s.extra.len());
+    for (name, dir) in &s.extra {
+        extras.push((name.clone(), load(dir, format!("--extra {name}={}", dir.display()))?));
+    }
+    if let Some(level) = s.generated_level {
+        // Only models with a context-noise input take a level; at least one must.
+        let takers: Vec<&mut Model> =
+            models.values_mut().chain(extras.iter_mut().map(|(_, m)| m)).filter(|m| m.manifest().denoiser.context_noise.is_some()).collect();
+        if takers.is_empty() {
+            return Err(setting("--generated-level", "none of these models takes context noise levels"));
+        }
+        for m in takers {
+            m.set_generated_level(level).map_err(|e| setting("--generated-level", e.to_string()))?;
+        }
+    }
+    let sampler = |m: &Model| Sampler::new(&m.manifest().diffusion, s.steps, s.method, 0.0).map_err(|e| setting("--steps", e.to_string()));
+    let mut rows: Vec<(Row, Option<&Model>)> = Vec::new();
+    for &kind in &s.policies {
+        let m = &models[weights_for(kind)];
+        rows.push((Row { name: kind.name().to_string(), predictor: Predictor::Model { model: m, policy: Policy::preset(kind), sampler: sampler(m)? } }, Some(m)));
+    }
+    // WorldPack fine-tuned with the newest frame kept, when that variant is there.
+    let keep_last_dir = s.models.join("worldpack_keep_last");
+    let keep_last = if s.policies.contains(&PolicyKind::WorldPack) && keep_last_dir.join("manifest.json").exists() {
+        Some(load(&keep_last_dir, format!("loading {}", keep_last_dir.display()))?)
+    } else {
+        None
+    };
+    if let Some(m) = &keep_last {
+        rows.push((Row { name: "worldpack_keep_last".into(), predictor: Predictor::Model { model: m, policy: m.trained_policy(), sampler: sampler(m)? } }, Some(m)));
+    }
+    for (name, m) in &extras {
+        rows.push((Row { name: name.clone(), predictor: Predictor::Model { model: m, policy: m.trained_policy(), sampler: sampler(m)? } }, Some(m)));
+    }
+    if let Some(dup) = rows.iter().enumerate().find(|(i, (r, _))| rows[..*i].iter().any(|(q, _)| q.name == r.name)) {
+        return Err(setting("--extra", format!("two rows are called {:?}", dup.1.0.name)));
+    }
+    if s.references {
+        rows.push((Row { name: "copy".into(), predictor: Predictor::Copy }, None));
+        rows.push((Row { name: "reproject".into(), predictor: Predictor::Reproject }, None));
+    }
+    let against = s.against.clone().unwrap_or_else(|| rows[0].0.name.clone());
+    if !rows.iter().any(|(r, _)| r.name == against) {
+        return Err(setting("--against", format!("no row called {against:?}")));
+    }
+
+    let frames_per_row: usize = trajs.iter().map(|t| rollout_frames(t, s.max_frames).len()).sum();
+    progress(Progress::Started { trajectories: trajs.len(), frames_per_row, rows: rows.len() });
+    // Each trajectory's (task, range) cell, for the FVD cells and the summaries.
+    let cells: Vec<(String, i32)> = trajs.iter().map(|t| (t.entry.task.clone(), t.entry.range)).collect();
+    let mut results: Vec<(String, SavedRow)> = Vec::new();
+    for (row, m) in &rows {
+        let key = RowKey {
+            row: row.name.clone(),
+            model: m.map(|m| model_key(m.dir()).map_err(io(m.dir()))).transpose()?,
+            suite: s.suite.display().to_string(),
+            trajectories: trajs.iter().map(|t| t.entry.dir.clone()).collect(),
+            steps: s.steps,
+            method: format!("{:?}", s.method).to_lowercase(),
+            max_frames: s.max_frames,
+            batch: s.batch,
+            generated_level: s.generated_level,
+            noise_seeding: "per frame".into(),
+            scores: SCORES.into(),
+            feature_networks: networks.clone(),
+        };
+        let path = rows_dir.join(format!("{}.json", row.name));
+        if let Some(saved) = std::fs::read_to_string(&path).ok().and_then(|t| serde_json::from_str::<SavedRow>(&t).ok()).filter(|r| r.key == key) {
+            progress(Progress::Reused { row: &row.name, path: &path });
+            results.push((row.name.clone(), saved));
+            continue;
+        }
+        let started = std::time::Instant::now();
+        let observed: Vec<Vec<Vec<f32>>> = match m {
+            Some(m) => trajs.iter().map(|t| encode_all(m, t)).collect::<Result<_, _>>()?,
+            None => trajs.iter().map(|_| Vec::new()).collect(),
+        };
+        progress(Progress::RowStarted { row: &row.name, frames: frames_per_row });
+        let output = rollout(&trajs, row, &observed, s.max_frames, s.batch, ROLLOUT_SEED, &scorer, &|n| progress(Progress::Frames(n)))?;
+        progress(Progress::RowDone);
+        let mut fvd = Vec::new();
+        if let Some(net) = &fvd_net {
+            for (task, range) in cells_of(&cells) {
+                let idx: Vec<usize> = (0..trajs.len()).filter(|&i| trajs[i].entry.task == task && trajs[i].entry.range == range).collect();
+                let t: Vec<&Trajectory> = idx.iter().map(|&i| &trajs[i]).collect();
+                let sc: Vec<_> = idx.iter().map(|&i| &output.scores[i]).collect();
+                let f: Vec<_> = idx.iter().map(|&i| &output.frames[i]).collect();
+                if let Some(estimate) = clip_fvd(net, &t, &sc, &f, FVD_REPS, 5)? {
+                    fvd.push(FvdCell { task, range, estimate });
+                }
+            }
+        }
+        let saved = SavedRow { key, frames: output.scores, fvd, wall_s: started.elapsed().as_secs_f64() };
+        write_atomically(&path, &serde_json::to_string(&saved)?)?;
+        results.push((row.name.clone(), saved));
+    }
+    let scores: Vec<(&str, &[Vec<FrameScore>])> = results.iter().map(|(n, r)| (n.as_str(), r.frames.as_slice())).collect();
+    let summary = summarise(&cells, &scores);
+    let pooled_rows = pooled(&scores, &against, POOLED_REPS).expect("the row was checked above");
+    let revisit = revisit_stratum(&trajs, &scores, &against)?;
+    let json = serde_json::json!({
+        "format": "worldpack-eval/1",
+        "suite": s.suite,
+        "models": s.models,
+        "sampler": { "method": format!("{:?}", s.method).to_lowercase(), "steps": s.steps },
+        "max_frames": s.max_frames,
+        "weights": s.policies.iter().map(|&k| (k.name(), weights_for(k))).collect::<BTreeMap<_, _>>(),
+        "trajectories": trajs.iter().map(|t| serde_json::json!({"dir": t.entry.dir, "task": t.entry.task, "range": t.entry.range,
+            "returning_point": t.entry.returning_point, "frames": t.len()})).collect::<Vec<_>>(),
+        "rows": results.iter().map(|(n, r)| serde_json::json!({"name": n, "wall_s": r.wall_s, "model": r.key.model})).collect::<Vec<_>>(),
+        "cells": summary.cells,
+        "pooled": pooled_rows,
+        "paired_against": against,
+        "strata": [&revisit],
+        "labels": results.iter().map(|(n, _)| (n.clone(), row_label(n))).collect::<BTreeMap<_, _>>(),
+        "fvd": results.iter().map(|(n, r)| (n.clone(), &r.fvd)).collect::<BTreeMap<_, _>>(),
+        "feature_networks": { "lpips": networks[0], "dreamsim": networks[1], "fvd": networks[2] },
+        "curves": summary.curves,
+        "per_frame": results.iter().map(|(n, r)| (n.clone(), &r.frames)).collect::<BTreeMap<_, _>>(),
+    });
+    let path = s.out.join("results.json");
+    write_atomically(&path, &serde_json::to_string(&json)?)?;
+    Ok(Evaluation { summary, pooled: pooled_rows, against, revisit, results: path })
+}
+
+/// The return-leg frames whose view an exploration frame showed for the most
+/// part ([`Stratum::Revisit`]), every row pooled over just those frames.
+fn revisit_stratum(trajs: &[Trajectory], scores: &[(&str, &[Vec<FrameScore>])], against: &str) -> Result<StratumPooled, ProgramError> {
+    let stratum = Stratum::Revisit;
+    // Which generated frames of each trajectory are revisits (every row scores the same frames).
+    let mut revisits: Vec<Vec<bool>> = Vec::with_capacity(trajs.len());
+    for (i, traj) in trajs.iter().enumerate() {
+        let frusta = traj.frusta()?;
+        revisits.push(scores[0].1[i].iter().map(|f| explored_share(traj, &frusta, f.t, EXPLORED_STRIDE) >= REVISIT_SHARE).collect());
+    }
+    let kept: Vec<Vec<Vec<FrameScore>>> = scores
+        .iter()
+        .map(|(_, r)| r.iter().zip(&revisits).map(|(t, keep)| t.iter().zip(keep).filter(|(_, k)| **k).map(|(f, _)| *f).collect()).collect())
+        .collect();
+    let rows: Vec<(&str, &[Vec<FrameScore>])> = scores.iter().zip(&kept).map(|((n, _), k)| (*n, k.as_slice())).collect();
+    Ok(StratumPooled {
+        name: stratum.name(),
+        describe: stratum.describe(),
+        frames: revisits.iter().flatten().filter(|&&k| k).count(),
+        trajectories: revisits.iter().filter(|t| t.iter().any(|&k| k)).count(),
+        pooled: pooled(&rows, against, POOLED_REPS).expect("the row is one of these"),
+    })
+}
