@@ -301,7 +301,7 @@ fn study_pairs_every_condition_and_resumes() {
     let bad = run(&["study", "--suite", s, "--out", o, "--quick", "--vo", "nope.npy"]);
     assert!(!bad.status.success());
     let err = String::from_utf8_lossy(&bad.stderr);
-    assert!(err.contains("--vo nope.npy"), "{err}");
+    assert!(err.contains("--vo: nope.npy"), "{err}");
     let _ = std::fs::remove_dir_all(&suite);
     let _ = std::fs::remove_dir_all(&out);
 }

@@ -14,5 +14,6 @@ pub mod reproject;
 pub mod rollout;
 pub mod stats;
 pub mod strata;
+pub mod study;
 pub mod summary;
 pub mod suite;
