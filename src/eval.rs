@@ -65,6 +65,13 @@ pub struct Options {
     /// The row the paired differences are taken against (default: the first row).
     #[arg(long)]
     pub against: Option<String>,
+    /// Comma-separated rows to draw in OUT/strip.png under the true frames, on the trajectory whose
+    /// paired PSNR difference (first of these − the --against row) is the median.
+    #[arg(long, value_delimiter = ',')]
+    pub strip: Vec<String>,
+    /// Frames per row of the strip, evenly spaced over the return leg.
+    #[arg(long, default_value_t = 10, value_parser = count(1, 100))]
+    pub strip_frames: usize,
 }
 
 impl Options {
@@ -87,6 +94,8 @@ impl Options {
             generated_level: self.generated_level,
             extra: self.extra.clone(),
             against: self.against.clone(),
+            strip: self.strip.clone(),
+            strip_frames: self.strip_frames,
         }
     }
 }
@@ -106,6 +115,9 @@ pub fn run(o: &Options) -> Result<()> {
     print(&e.summary);
     print_pooled(&e.pooled, &e.against);
     print_stratum(&e.revisit, &e.against);
+    if let Some(strip) = &e.strip {
+        println!("\nwrote {} (rows: {}; trajectory {}, {}; frames {:?})", strip.path.display(), strip.rows.join(", "), strip.trajectory, strip.rule, strip.frames);
+    }
     println!("wrote {}", e.results.display());
     Ok(())
 }

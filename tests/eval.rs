@@ -47,9 +47,11 @@ fn json(path: &Path) -> Value {
 fn reduced_rollout_suite_runs_resumes_and_scores_every_frame() {
     let suite = suite("rollout");
     let out = temp("out");
-    let args = ["eval", "--suite", suite.to_str().unwrap(), "--out", out.to_str().unwrap(), "--max-frames", "5", "--steps", "2", "--threads", "1"];
+    let args = ["eval", "--suite", suite.to_str().unwrap(), "--out", out.to_str().unwrap(), "--max-frames", "5", "--steps", "2", "--threads", "1",
+        "--strip", "worldpack,copy", "--strip-frames", "3"];
     ok(&args);
     let first = json(&out.join("results.json"));
+    strip_shows_the_scored_frames(&first, &out.join("strip.png"));
     let rows: Vec<&str> = first["rows"].as_array().unwrap().iter().map(|r| r["name"].as_str().unwrap()).collect();
     assert_eq!(rows, ["baseline", "nearest_frame_packing", "memory_retrieval", "worldpack", "worldmem_greedy", "worldpack_keep_last", "copy", "reproject"]);
     let trajectories = first["trajectories"].as_array().unwrap();
@@ -115,6 +117,43 @@ fn reduced_rollout_suite_runs_resumes_and_scores_every_frame() {
     }
     let _ = std::fs::remove_dir_all(&suite);
     let _ = std::fs::remove_dir_all(&out);
+}
+
+/// The strip is truth, worldpack, copy at 3 evenly spaced frames of the
+/// chosen leg; each tile scores against the truth tile as results.json says
+/// that frame scored (copy exactly; the model within its batch tolerance).
+fn strip_shows_the_scored_frames(results: &Value, path: &Path) {
+    let strip = &results["strip"];
+    assert_eq!(strip["rows"], serde_json::json!(["truth", "worldpack", "copy"]));
+    let frames: Vec<u64> = strip["frames"].as_array().unwrap().iter().map(|f| f.as_u64().unwrap()).collect();
+    let ti = results["trajectories"].as_array().unwrap().iter().position(|t| t["dir"] == strip["trajectory"]).unwrap();
+    let start = results["trajectories"][ti]["returning_point"].as_u64().unwrap();
+    assert_eq!(frames, [start, start + 2, start + 4], "5 generated frames, 3 columns");
+
+    let mut decoder = png::Decoder::new(std::io::BufReader::new(std::fs::File::open(path).unwrap()));
+    decoder.set_transformations(png::Transformations::EXPAND);
+    let mut reader = decoder.read_info().unwrap();
+    let mut px = vec![0; reader.output_buffer_size()];
+    let info = reader.next_frame(&mut px).unwrap();
+    let (w, size, gap) = (info.width as usize, 64, 2);
+    assert_eq!((info.width, info.height), (3 * 64 + 2 * 2, 3 * 64 + 2 * 2));
+    let tile = |r: usize, c: usize| -> Vec<u8> {
+        (0..size).flat_map(|y| {
+            let at = ((r * (size + gap) + y) * w + c * (size + gap)) * 3;
+            px[at..at + size * 3].to_vec()
+        }).collect()
+    };
+    let psnr = |a: &[u8], b: &[u8]| {
+        let mse = a.iter().zip(b).map(|(&x, &y)| (x as f64 - y as f64).powi(2)).sum::<f64>() / a.len() as f64;
+        10.0 * (255.0f64 * 255.0 / mse).log10()
+    };
+    for (row, name, tolerance) in [(1, "worldpack", 0.05), (2, "copy", 1e-9)] {
+        for (c, &t) in frames.iter().enumerate() {
+            let scored = results["per_frame"][name][ti].as_array().unwrap().iter().find(|f| f["t"] == t).unwrap()["psnr"].as_f64().unwrap();
+            let shown = psnr(&tile(row, c), &tile(0, c));
+            assert!((shown - scored).abs() <= tolerance, "{name} at frame {t}: the strip shows {shown} dB, the row scored {scored}");
+        }
+    }
 }
 
 #[test]

@@ -54,6 +54,11 @@ pub struct Settings {
     pub extra: Vec<(String, PathBuf)>,
     /// The row paired differences are taken against (default: the first).
     pub against: Option<String>,
+    /// Rows to show in `strip.png` under the truth (none: no picture); the
+    /// trajectory is the median one for the first row against `against`.
+    pub strip: Vec<String>,
+    /// Frames per row of the picture, evenly spaced over the return leg.
+    pub strip_frames: usize,
 }
 
 /// What the run is doing, for a progress display.
@@ -141,12 +146,25 @@ pub struct StratumPooled {
     pub pooled: Vec<PooledRow>,
 }
 
+/// The picture of one return leg (`strip.png`).
+#[derive(Serialize)]
+pub struct Strip {
+    pub path: PathBuf,
+    pub trajectory: String,
+    pub rule: String,
+    /// Top to bottom; the first is the truth.
+    pub rows: Vec<String>,
+    /// The frame index of each column.
+    pub frames: Vec<usize>,
+}
+
 /// What a run measured (also written to `results.json`).
 pub struct Evaluation {
     pub summary: Summary,
     pub pooled: Vec<PooledRow>,
     pub against: String,
     pub revisit: StratumPooled,
+    pub strip: Option<Strip>,
     pub results: PathBuf,
 }
 
@@ -216,8 +234,11 @@ pub fn evaluate(s: &Settings, progress: &dyn Fn(Progress)) -> Result<Evaluation,
         rows.push((Row { name: "reproject".into(), predictor: Predictor::Reproject }, None));
     }
     let against = s.against.clone().unwrap_or_else(|| rows[0].0.name.clone());
-    if !rows.iter().any(|(r, _)| r.name == against) {
-        return Err(setting("--against", format!("no row called {against:?}")));
+    for (field, name) in std::iter::once(("--against", &against)).chain(s.strip.iter().map(|n| ("--strip", n))) {
+        if !rows.iter().any(|(r, _)| &r.name == name) {
+            let names: Vec<&str> = rows.iter().map(|(r, _)| r.name.as_str()).collect();
+            return Err(setting(field, format!("no row called {name:?}; the rows are {}", names.join(", "))));
+        }
     }
 
     let frames_per_row: usize = trajs.iter().map(|t| rollout_frames(t, s.max_frames).len()).sum();
@@ -274,6 +295,7 @@ pub fn evaluate(s: &Settings, progress: &dyn Fn(Progress)) -> Result<Evaluation,
     let summary = summarise(&cells, &scores);
     let pooled_rows = pooled(&scores, &against, POOLED_REPS).expect("the row was checked above");
     let revisit = revisit_stratum(&trajs, &scores, &against)?;
+    let strip = if s.strip.is_empty() { None } else { strip(s, &trajs, &rows, &scores, &against)? };
     let json = serde_json::json!({
         "format": "worldpack-eval/1",
         "suite": s.suite,
@@ -288,6 +310,7 @@ pub fn evaluate(s: &Settings, progress: &dyn Fn(Progress)) -> Result<Evaluation,
         "pooled": pooled_rows,
         "paired_against": against,
         "strata": [&revisit],
+        "strip": strip,
         "labels": results.iter().map(|(n, _)| (n.clone(), row_label(n))).collect::<BTreeMap<_, _>>(),
         "fvd": results.iter().map(|(n, r)| (n.clone(), &r.fvd)).collect::<BTreeMap<_, _>>(),
         "feature_networks": { "lpips": networks[0], "dreamsim": networks[1], "fvd": networks[2] },
@@ -296,7 +319,49 @@ pub fn evaluate(s: &Settings, progress: &dyn Fn(Progress)) -> Result<Evaluation,
     });
     let path = s.out.join("results.json");
     write_atomically(&path, &serde_json::to_string(&json)?)?;
-    Ok(Evaluation { summary, pooled: pooled_rows, against, revisit, results: path })
+    Ok(Evaluation { summary, pooled: pooled_rows, against, revisit, strip, results: path })
+}
+
+/// Rolls the rule's trajectory out again for each strip row (with the noise
+/// it had in the suite, so the frames are the ones scored) and writes the
+/// truth and those rows as one picture.
+fn strip(
+    s: &Settings,
+    trajs: &[Trajectory],
+    rows: &[(Row, Option<&Model>)],
+    scores: &[(&str, &[Vec<FrameScore>])],
+    against: &str,
+) -> Result<Option<Strip>, ProgramError> {
+    let of = |name: &str| scores.iter().find(|(n, _)| *n == name).map(|(_, r)| *r).expect("strip rows were checked");
+    let Some(ti) = crate::strip::median_trajectory(of(&s.strip[0]), of(against)) else { return Ok(None) };
+    let traj = &trajs[ti];
+    let leg = rollout_frames(traj, s.max_frames);
+    let columns = crate::strip::spread(leg.len(), s.strip_frames);
+    let scorer = Scorer { keep_frames: true, ..Scorer::default() };
+    let mut generated: Vec<Vec<Vec<u8>>> = Vec::new();
+    for name in &s.strip {
+        let (row, model) = rows.iter().find(|(r, _)| &r.name == name).expect("strip rows were checked");
+        let observed = match model {
+            Some(m) => vec![encode_all(m, traj)?],
+            None => vec![Vec::new()],
+        };
+        let out = crate::rollout::rollout_as(std::slice::from_ref(traj), &[ti], row, &observed, s.max_frames, 1, ROLLOUT_SEED, &scorer, &|_| {})?;
+        generated.push(out.frames.into_iter().next().unwrap_or_default());
+    }
+    let truth: Vec<&[u8]> = columns.iter().map(|&c| traj.frame(leg.start + c)).collect();
+    let mut grid_rows = vec![truth];
+    grid_rows.extend(generated.iter().map(|frames| columns.iter().map(|&c| frames[c].as_slice()).collect()));
+    let (w, h) = (traj.intrinsics.width as usize, traj.intrinsics.height as usize);
+    let (gw, gh, px) = crate::strip::grid(&grid_rows, w, h, 2);
+    let path = s.out.join("strip.png");
+    world::picture::write_png(&path, gw as u32, gh as u32, &px).map_err(io(&path))?;
+    Ok(Some(Strip {
+        path,
+        trajectory: traj.entry.dir.clone(),
+        rule: format!("the median trajectory of the mean paired PSNR difference {} − {against}", s.strip[0]),
+        rows: std::iter::once("truth".to_string()).chain(s.strip.iter().cloned()).collect(),
+        frames: columns.iter().map(|&c| leg.start + c).collect(),
+    }))
 }
 
 /// The return-leg frames whose view an exploration frame showed for the most

@@ -13,6 +13,7 @@ pub mod program;
 pub mod reproject;
 pub mod rollout;
 pub mod stats;
+pub mod strip;
 pub mod strata;
 pub mod study;
 pub mod summary;

@@ -91,6 +91,24 @@ pub fn rollout(
     scorer: &Scorer,
     progress: &dyn Fn(usize),
 ) -> Result<RowOutput, ProbeError> {
+    let all: Vec<usize> = (0..trajs.len()).collect();
+    rollout_as(trajs, &all, row, observed_latents, max_frames, batch, seed, scorer, progress)
+}
+
+/// [`rollout`] where `trajs[i]` draws its noise as trajectory `suite_index[i]`
+/// of its suite: one trajectory rolled out again alone makes the same frames.
+pub fn rollout_as(
+    trajs: &[Trajectory],
+    suite_index: &[usize],
+    row: &Row,
+    observed_latents: &[Vec<Vec<f32>>],
+    max_frames: Option<usize>,
+    batch: usize,
+    seed: u64,
+    scorer: &Scorer,
+    progress: &dyn Fn(usize),
+) -> Result<RowOutput, ProbeError> {
+    assert_eq!(trajs.len(), suite_index.len(), "one suite index per trajectory");
     match &row.predictor {
         Predictor::Copy | Predictor::Reproject => {
             let (scores, frames) = trajs.iter().map(|t| reference(t, &row.predictor, max_frames, scorer, progress)).collect::<Result<Vec<_>, _>>()?.into_iter().unzip();
@@ -135,7 +153,7 @@ pub fn rollout(
                         .zip(&plans)
                         .map(|(&i, plan)| {
                             let (r, t) = (&runs[i], runs[i].next);
-                            Request { plan, target_time: t as u64, target_pose: &r.traj.poses[t], action: &r.traj.actions[t], seed: frame_seed(seed, i, t) }
+                            Request { plan, target_time: t as u64, target_pose: &r.traj.poses[t], action: &r.traj.actions[t], seed: frame_seed(seed, suite_index[i], t) }
                         })
                         .collect();
                     // Frames from the returning point on are the model's own.
