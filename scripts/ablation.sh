@@ -22,6 +22,8 @@ declare -A recipe=(
   [context_noise]="--context-noise 0.7 --generated-level 0.3"
   [rollout]="--rollout-share 0.5 --rollout-steps 4"
   [pose_noise]="--pose-noise-translation 0.25 --pose-noise-degrees 2.5"
+  # Rollout fine-tuning again, its frames marked with the generated level and sampled as at inference (10 steps).
+  [rollout_marked]="--context-noise 0.7 --generated-level 0.3 --rollout-share 0.25 --rollout-steps 10"
 )
 rows=("$@")
 if [ ${#rows[@]} -eq 0 ]; then rows=(context_noise rollout continued pose_noise); fi

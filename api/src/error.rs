@@ -32,7 +32,7 @@ impl ApiError {
 
 impl IntoResponse for ApiError {
     fn into_response(self) -> Response {
-        let body = serde_json::json!({ "error": { "field": self.field, "message": self.message } });
+        let body = crate::routes::ErrorBody { error: crate::routes::ErrorDetail { field: self.field, message: self.message } };
         (self.status, Json(body)).into_response()
     }
 }

@@ -4,6 +4,7 @@
 
 pub mod engine;
 pub mod error;
+pub mod openapi;
 mod routes;
 pub mod session;
 pub mod store;

@@ -15,14 +15,16 @@ use axum::{Json, Router};
 use base64::Engine;
 use base64::engine::general_purpose::STANDARD as B64;
 use memory::input::{IntrinsicsInput, PoseInput};
-use memory::{ContextPlan, Policy, Pose};
+use memory::{ContextPlan, Intrinsics, Policy, Pose};
 use model::Sampler;
-use serde::Deserialize;
 use serde::de::DeserializeOwned;
-use serde_json::{Value, json};
+use serde::{Deserialize, Serialize};
+use serde_json::Value;
+use utoipa::ToSchema;
 use world::agent::Action;
 
 use crate::error::ApiError;
+use crate::openapi::{self, MAX_COORDINATE, MAX_ID, MAX_TURN_DEG};
 use crate::session::{Session, policy_of};
 use crate::engine::{encode_png, meta};
 use crate::store::{FrameRecord, SessionRecord};
@@ -31,13 +33,9 @@ use crate::{AppState, Slot};
 type Res<T> = Result<T, ApiError>;
 type St = State<Arc<AppState>>;
 
-/// The OpenAPI description, written by hand (docs/api.md says it in prose).
-pub const OPENAPI: &str = include_str!("../openapi.json");
-
 pub fn router(state: Arc<AppState>) -> Router {
-    let doc: Value = serde_json::from_str(OPENAPI).expect("api/openapi.json is valid JSON (tested)");
     Router::new()
-        .merge(utoipa_swagger_ui::SwaggerUi::new("/docs").external_url_unchecked("/openapi.json", doc))
+        .merge(utoipa_swagger_ui::SwaggerUi::new("/docs").external_url_unchecked("/openapi.json", openapi::document()))
         .route("/v1/health", get(health))
         .route("/metrics", get(metrics))
         .route("/v1/sessions", post(create))
@@ -62,14 +60,51 @@ fn parse<T: DeserializeOwned>(headers: &HeaderMap, body: Result<Bytes, BytesReje
     }
     let bytes = body.map_err(|r| ApiError::new(r.status(), "body", r.body_text()))?;
     let de = &mut serde_json::Deserializer::from_slice(&bytes);
-    serde_path_to_error::deserialize(de).map_err(|e| {
-        let path = e.path().to_string();
-        ApiError::bad(if path == "." { "body".into() } else { path }, e.inner().to_string())
+    let first = match serde_path_to_error::deserialize(de) {
+        Ok(v) => return Ok(v),
+        Err(e) => e,
+    };
+    // Once more with whole-valued floats as integers; the first error names the field if that fails too.
+    let retried = serde_json::from_slice::<Value>(&bytes).ok().and_then(|mut v| {
+        integral_floats_as_integers(&mut v);
+        serde_json::from_value(v).ok()
+    });
+    retried.ok_or_else(|| {
+        let path = first.path().to_string();
+        ApiError::bad(if path == "." { "body".into() } else { path }, first.inner().to_string())
     })
 }
 
+/// JSON has one number type and JSON Schema calls 7.0 an integer, so a
+/// whole-valued float is taken where an integer is expected (a seed of
+/// 7.0); fields that take floats accept integers anyway.
+fn integral_floats_as_integers(v: &mut Value) {
+    match v {
+        Value::Number(n) if n.is_f64() => {
+            let x = n.as_f64().unwrap_or(f64::NAN);
+            if x.fract() == 0.0 && (0.0..1.8e19).contains(&x) {
+                *v = Value::from(x as u64);
+            } else if x.fract() == 0.0 && (-9.2e18..0.0).contains(&x) {
+                *v = Value::from(x as i64);
+            }
+        }
+        Value::Array(items) => items.iter_mut().for_each(integral_floats_as_integers),
+        Value::Object(map) => map.values_mut().for_each(integral_floats_as_integers),
+        _ => {}
+    }
+}
+
 fn session_id(id: Result<Path<u64>, PathRejection>) -> Res<u64> {
-    id.map(|Path(id)| id).map_err(|_| ApiError::bad("session", "session ids are whole numbers"))
+    let id = id.map(|Path(id)| id).map_err(|_| ApiError::bad("session", format!("session ids are whole numbers from 0 to {MAX_ID}")))?;
+    check_id("session", id)
+}
+
+/// Ids above [`MAX_ID`] are never handed out; the document's bound says so.
+fn check_id(field: &str, id: u64) -> Res<u64> {
+    if id > MAX_ID {
+        return Err(ApiError::bad(field, format!("must be at most {MAX_ID}, got {id}")));
+    }
+    Ok(id)
 }
 
 fn slot(st: &AppState, id: u64) -> Res<Arc<Slot>> {
@@ -101,22 +136,6 @@ async fn blocking<T: Send + 'static>(f: impl FnOnce() -> Res<T> + Send + 'static
     tokio::task::spawn_blocking(f).await.map_err(ApiError::internal)?
 }
 
-fn pose_json(p: &Pose) -> Value {
-    json!({ "rotation": p.rotation_rows(), "position": p.position().to_array() })
-}
-
-fn plan_json(policy: &Policy, plan: &ContextPlan) -> Value {
-    let slots: Vec<Value> = plan
-        .slots
-        .iter()
-        .enumerate()
-        .map(|(i, s)| match s.frame {
-            Some(f) => json!({ "slot": i, "rate": s.rate, "frame": f.id, "time": f.time, "overlap": f.overlap, "score": f.score }),
-            None => json!({ "slot": i, "rate": s.rate, "frame": null }),
-        })
-        .collect();
-    json!({ "policy": policy.kind, "slots": slots })
-}
 
 /// A PNG (base64) as RGB bytes, width, height.
 fn decode_png(field: &str, b64: &str) -> Res<(Vec<u8>, u32, u32)> {
@@ -137,10 +156,6 @@ fn decode_png(field: &str, b64: &str) -> Res<(Vec<u8>, u32, u32)> {
     Ok((rgb, info.width, info.height))
 }
 
-/// Positions are capped at ±1e9 world units: beyond that the f64 geometry
-/// has no centimetres left and any answer would be noise.
-const MAX_COORDINATE: f64 = 1e9;
-
 fn pose_from(input: &PoseInput, field: &str) -> Res<Pose> {
     let pose = input.resolve().map_err(|e| e.within(field))?;
     if pose.position().abs().max_element() > MAX_COORDINATE {
@@ -151,23 +166,27 @@ fn pose_from(input: &PoseInput, field: &str) -> Res<Pose> {
 
 fn validate_action(a: &Action) -> Res<()> {
     for (field, v) in [("action.yaw_deg", a.yaw_deg), ("action.pitch_deg", a.pitch_deg)] {
-        if !v.is_finite() || v.abs() > 180.0 {
-            return Err(ApiError::bad(field, format!("must be a finite angle within ±180 degrees, got {v}")));
+        if !v.is_finite() || v.abs() > MAX_TURN_DEG {
+            return Err(ApiError::bad(field, format!("must be a finite angle within ±{MAX_TURN_DEG} degrees, got {v}")));
         }
     }
     Ok(())
 }
 
-async fn health(State(st): St) -> Json<Value> {
-    Json(json!({
-        "status": "ok",
-        "model": st.engine.model.as_ref().map(|m| m.manifest().name.clone()),
-        "provider": st.engine.model.as_ref().map(|m| m.provider()),
-        "sessions": st.sessions.read().unwrap().len(),
-    }))
+#[utoipa::path(get, path = "/v1/health", summary = "Liveness, the model served and the live sessions",
+    responses((status = 200, body = Health)))]
+pub async fn health(State(st): St) -> Json<Health> {
+    Json(Health {
+        status: "ok".into(),
+        model: st.engine.model.as_ref().map(|m| m.manifest().name.clone()),
+        provider: st.engine.model.as_ref().map(|m| m.provider().to_string()),
+        sessions: st.sessions.read().unwrap().len(),
+    })
 }
 
-async fn metrics(State(st): St) -> Response {
+#[utoipa::path(get, path = "/metrics", summary = "Prometheus counters: steps, observes, selects, sessions, step seconds",
+    responses((status = 200, description = "Prometheus text exposition format", body = String, content_type = "text/plain")))]
+pub async fn metrics(State(st): St) -> Response {
     let m = &st.metrics;
     let g = |a: &std::sync::atomic::AtomicU64| a.load(Ordering::Relaxed);
     let text = format!(
@@ -187,36 +206,59 @@ async fn metrics(State(st): St) -> Response {
     ([(header::CONTENT_TYPE, "text/plain; version=0.0.4")], text).into_response()
 }
 
-#[derive(Deserialize)]
+/// A new session: a synthetic world (by seed), or real frames with their
+/// poses and the camera's intrinsics; not both.
+#[derive(Deserialize, ToSchema)]
 #[serde(deny_unknown_fields)]
-struct CreateRequest {
+pub struct CreateRequest {
     #[serde(default)]
+    #[schema(schema_with = openapi::optional_policy)]
     policy: Option<Value>,
     #[serde(default)]
     synthetic: Option<SyntheticStart>,
     #[serde(default)]
+    #[schema(min_items = 1)]
     frames: Option<Vec<FrameInput>>,
     #[serde(default)]
+    #[schema(schema_with = openapi::optional_intrinsics)]
     intrinsics: Option<IntrinsicsInput>,
 }
 
-#[derive(Deserialize)]
+#[derive(Deserialize, ToSchema)]
 #[serde(deny_unknown_fields)]
-struct SyntheticStart {
+pub struct SyntheticStart {
+    /// The world's seed.
+    #[schema(maximum = 9223372036854775807_u64)]
     seed: u64,
+    /// Start on this biome (the world must have it).
     #[serde(default)]
+    #[schema(schema_with = openapi::optional_biome)]
     biome: Option<world::Biome>,
 }
 
-#[derive(Deserialize)]
+#[derive(Deserialize, ToSchema)]
 #[serde(deny_unknown_fields)]
-struct FrameInput {
+pub struct FrameInput {
+    /// An 8-bit RGB or RGBA PNG, base64, of the intrinsics' size.
+    #[schema(content_encoding = "base64")]
     image_png: String,
+    #[schema(schema_with = openapi::pose_ref)]
     pose: PoseInput,
 }
 
-async fn create(State(st): St, headers: HeaderMap, body: Result<Bytes, BytesRejection>) -> Res<(StatusCode, Json<Value>)> {
+#[utoipa::path(post, path = "/v1/sessions", summary = "Create a session (synthetic world or real frames); answered after the commit",
+    request_body = CreateRequest,
+    responses(
+        (status = 201, body = Created),
+        (status = 400, description = "a field is missing or wrong (the body names it)", body = ErrorBody),
+        (status = 413, description = "the body is larger than the server's limit", body = ErrorBody),
+        (status = 415, description = "the body is not application/json", body = ErrorBody),
+        (status = 503, description = "too many model calls in flight; retry", body = ErrorBody)))]
+pub async fn create(State(st): St, headers: HeaderMap, body: Result<Bytes, BytesRejection>) -> Res<(StatusCode, Json<Created>)> {
     let req: CreateRequest = parse(&headers, body)?;
+    if let Some(s) = &req.synthetic {
+        check_id("synthetic.seed", s.seed)?;
+    }
     let policy_spec = req.policy.unwrap_or_else(|| st.config.policy.clone());
     policy_of(&policy_spec)?;
     let _permit = permit(&st)?;
@@ -252,24 +294,32 @@ async fn create(State(st): St, headers: HeaderMap, body: Result<Bytes, BytesReje
     })
     .await?;
     st.metrics.sessions_created.fetch_add(1, Ordering::Relaxed);
-    Ok((StatusCode::CREATED, Json(json!({ "session": id, "frames": frames }))))
+    Ok((StatusCode::CREATED, Json(Created { session: id, frames })))
 }
 
-async fn describe(State(st): St, id: Result<Path<u64>, PathRejection>) -> Res<Json<Value>> {
+#[utoipa::path(get, path = "/v1/sessions/{id}", summary = "A session: frames, resolved policy, world seed, intrinsics",
+    params(("id" = u64, Path, description = "session id", minimum = 0, maximum = 9223372036854775807_u64)),
+    responses((status = 200, body = SessionInfo), (status = 400, description = "the id is not a whole number in range", body = ErrorBody),
+        (status = 404, description = "no such session", body = ErrorBody), (status = 429, description = "too many requests queued on the session", body = ErrorBody)))]
+pub async fn describe(State(st): St, id: Result<Path<u64>, PathRejection>) -> Res<Json<SessionInfo>> {
     let id = session_id(id)?;
     let slot = slot(&st, id)?;
     let s = lock(&st, &slot).await?;
-    Ok(Json(json!({
-        "session": id,
-        "frames": s.frames.len(),
-        "policy": s.policy,
-        "world_seed": s.record.world_seed,
-        "intrinsics": s.record.intrinsics,
-        "has_latents": s.frames.first().is_some_and(|f| !f.latent.is_empty()),
-    })))
+    Ok(Json(SessionInfo {
+        session: id,
+        frames: s.frames.len(),
+        policy: s.policy.clone(),
+        world_seed: s.record.world_seed,
+        intrinsics: s.record.intrinsics,
+        has_latents: s.frames.first().is_some_and(|f| !f.latent.is_empty()),
+    }))
 }
 
-async fn delete(State(st): St, id: Result<Path<u64>, PathRejection>) -> Res<StatusCode> {
+#[utoipa::path(delete, path = "/v1/sessions/{id}", summary = "Delete a session and its stored frames (durable before the answer)",
+    params(("id" = u64, Path, description = "session id", minimum = 0, maximum = 9223372036854775807_u64)),
+    responses((status = 204, description = "deleted"), (status = 400, description = "the id is not a whole number in range", body = ErrorBody),
+        (status = 404, description = "no such session", body = ErrorBody), (status = 429, description = "too many requests queued on the session", body = ErrorBody)))]
+pub async fn delete(State(st): St, id: Result<Path<u64>, PathRejection>) -> Res<StatusCode> {
     let id = session_id(id)?;
     let slot = slot(&st, id)?;
     let mut guard = lock(&st, &slot).await?;
@@ -280,19 +330,39 @@ async fn delete(State(st): St, id: Result<Path<u64>, PathRejection>) -> Res<Stat
     Ok(StatusCode::NO_CONTENT)
 }
 
-#[derive(Deserialize)]
+/// One step of the world model.
+#[derive(Deserialize, ToSchema)]
 #[serde(deny_unknown_fields)]
-struct StepRequest {
+pub struct StepRequest {
+    #[schema(schema_with = openapi::action)]
     action: Action,
+    /// The next camera pose, for sessions of real frames (the kinematic motion model is used without it).
     #[serde(default)]
+    #[schema(schema_with = openapi::optional_pose)]
     pose: Option<PoseInput>,
+    /// Sampler steps (default: the server's --steps).
     #[serde(default)]
+    #[schema(minimum = 1, maximum = 1000)]
     steps: Option<usize>,
+    /// Noise seed (default: derived from the frame's time).
     #[serde(default)]
+    #[schema(maximum = 9223372036854775807_u64)]
     seed: Option<u64>,
 }
 
-async fn step(State(st): St, id: Result<Path<u64>, PathRejection>, headers: HeaderMap, body: Result<Bytes, BytesRejection>) -> Res<Json<Value>> {
+#[utoipa::path(post, path = "/v1/sessions/{id}/step", summary = "Select memories, generate the next frame, store it (durable before the answer)",
+    params(("id" = u64, Path, description = "session id", minimum = 0, maximum = 9223372036854775807_u64)),
+    request_body = StepRequest,
+    responses(
+        (status = 200, body = StepAnswer),
+        (status = 400, description = "a field is missing or wrong (the body names it)", body = ErrorBody),
+        (status = 404, description = "no such session", body = ErrorBody),
+        (status = 409, description = "the server runs without a model (memory only)", body = ErrorBody),
+        (status = 413, description = "the body is larger than the server's limit", body = ErrorBody),
+        (status = 415, description = "the body is not application/json", body = ErrorBody),
+        (status = 429, description = "too many requests queued on the session", body = ErrorBody),
+        (status = 503, description = "too many model calls in flight; retry", body = ErrorBody)))]
+pub async fn step(State(st): St, id: Result<Path<u64>, PathRejection>, headers: HeaderMap, body: Result<Bytes, BytesRejection>) -> Res<Json<StepAnswer>> {
     let started = Instant::now();
     let id = session_id(id)?;
     let req: StepRequest = parse(&headers, body)?;
@@ -300,6 +370,12 @@ async fn step(State(st): St, id: Result<Path<u64>, PathRejection>, headers: Head
     let Some(m) = &st.engine.model else {
         return Err(ApiError::new(StatusCode::CONFLICT, "model", "this server runs without a model (memory only): use observe"));
     };
+    if req.steps.is_some_and(|n| !(1..=1000).contains(&n)) {
+        return Err(ApiError::bad("steps", "must be from 1 to 1000"));
+    }
+    if let Some(seed) = req.seed {
+        check_id("seed", seed)?;
+    }
     let steps = req.steps.unwrap_or(st.config.steps);
     let sampler = Sampler::new(&m.manifest().diffusion, steps, st.config.method, 0.0)?;
     let slot = slot(&st, id)?;
@@ -310,34 +386,45 @@ async fn step(State(st): St, id: Result<Path<u64>, PathRejection>, headers: Head
         let pose = req.pose.as_ref().map(|p| pose_from(p, "pose")).transpose()?;
         let o = st2.engine.step(&mut s, &req.action, pose, &sampler, req.seed)?;
         let [select, sample, decode, store] = o.timings_ms;
-        Ok(json!({
-            "session": s.id, "index": o.index, "time": o.time, "pose": pose_json(&o.pose), "source": crate::session::GENERATED,
-            "image_png": B64.encode(&o.png), "steps": sampler.len(), "provider": st2.engine.model.as_ref().map(|m| m.provider()),
-            "selection": { "plan": plan_json(&s.policy, &o.plan), "layout": o.layout, "exact_evaluations": o.exact_evaluations },
-            "timings_ms": { "select": select, "sample": sample, "decode": decode, "store": store },
-            "truth": o.truth.map(|t| json!({
-                "psnr_db": t.psnr_db, "ssim": t.ssim, "image": format!("/v1/sessions/{}/frames/{}/truth", s.id, o.index),
-            })),
-        }))
+        Ok(StepAnswer {
+            session: s.id,
+            index: o.index,
+            time: o.time,
+            pose: PoseAnswer::of(&o.pose),
+            source: crate::session::GENERATED.into(),
+            image_png: B64.encode(&o.png),
+            steps: sampler.len(),
+            provider: st2.engine.model.as_ref().map(|m| m.provider().to_string()),
+            selection: Selection { plan: PlanAnswer::of(&s.policy, &o.plan), layout: o.layout, exact_evaluations: o.exact_evaluations },
+            timings_ms: StepTimings { select, sample, decode, store, total: 0.0 },
+            truth: o.truth.map(|t| TruthAnswer { psnr_db: t.psnr_db, ssim: t.ssim, image: format!("/v1/sessions/{}/frames/{}/truth", s.id, o.index) }),
+        })
     })
     .await?;
     let micros = started.elapsed().as_micros() as u64;
     st.metrics.steps.fetch_add(1, Ordering::Relaxed);
     st.metrics.step_micros.fetch_add(micros, Ordering::Relaxed);
     let mut out = out;
-    out["timings_ms"]["total"] = json!(micros as f64 / 1e3);
+    out.timings_ms.total = micros as f64 / 1e3;
     Ok(Json(out))
 }
 
-#[derive(Deserialize)]
+/// A real frame with its pose.
+#[derive(Deserialize, ToSchema)]
 #[serde(deny_unknown_fields)]
-struct ObserveRequest {
+pub struct ObserveRequest {
+    /// An 8-bit RGB or RGBA PNG, base64, of the session's image size.
+    #[schema(content_encoding = "base64")]
     image_png: String,
+    #[schema(schema_with = openapi::pose_ref)]
     pose: PoseInput,
+    /// The action that led here, when known.
     #[serde(default)]
+    #[schema(schema_with = openapi::optional_action)]
     action: Option<Action>,
-    /// Depth as a 16-bit grayscale PNG in millimetres (0 = unknown), the image's size.
+    /// Depth as a 16-bit grayscale PNG in millimetres (0 = unknown), the image's size, base64.
     #[serde(default)]
+    #[schema(content_encoding = "base64")]
     depth_png16: Option<String>,
 }
 
@@ -356,7 +443,18 @@ fn depth_png(b64: &str, w: u32, h: u32) -> Res<Vec<u8>> {
     Ok(bytes)
 }
 
-async fn observe(State(st): St, id: Result<Path<u64>, PathRejection>, headers: HeaderMap, body: Result<Bytes, BytesRejection>) -> Res<Json<Value>> {
+#[utoipa::path(post, path = "/v1/sessions/{id}/observe", summary = "Append a real frame with its pose (encoded when a model is loaded); answered after the commit",
+    params(("id" = u64, Path, description = "session id", minimum = 0, maximum = 9223372036854775807_u64)),
+    request_body = ObserveRequest,
+    responses(
+        (status = 200, body = Observed),
+        (status = 400, description = "a field is missing or wrong (the body names it)", body = ErrorBody),
+        (status = 404, description = "no such session", body = ErrorBody),
+        (status = 413, description = "the body is larger than the server's limit", body = ErrorBody),
+        (status = 415, description = "the body is not application/json", body = ErrorBody),
+        (status = 429, description = "too many requests queued on the session", body = ErrorBody),
+        (status = 503, description = "too many model calls in flight; retry", body = ErrorBody)))]
+pub async fn observe(State(st): St, id: Result<Path<u64>, PathRejection>, headers: HeaderMap, body: Result<Bytes, BytesRejection>) -> Res<Json<Observed>> {
     let id = session_id(id)?;
     let req: ObserveRequest = parse(&headers, body)?;
     if let Some(a) = &req.action {
@@ -371,20 +469,32 @@ async fn observe(State(st): St, id: Result<Path<u64>, PathRejection>, headers: H
     let st2 = st.clone();
     let out = blocking(move || {
         let (index, time) = st2.engine.observe(&mut s, &rgb, w, h, pose, req.action.as_ref(), depth)?;
-        Ok(json!({ "session": s.id, "index": index, "time": time, "has_latent": st2.engine.model.is_some() }))
+        Ok(Observed { session: s.id, index, time, has_latent: st2.engine.model.is_some() })
     })
     .await?;
     st.metrics.observes.fetch_add(1, Ordering::Relaxed);
     Ok(Json(out))
 }
 
-#[derive(Deserialize)]
+/// A query pose for a dry run of the session's policy.
+#[derive(Deserialize, ToSchema)]
 #[serde(deny_unknown_fields)]
-struct SelectRequest {
+pub struct SelectRequest {
+    #[schema(schema_with = openapi::pose_ref)]
     pose: PoseInput,
 }
 
-async fn select(State(st): St, id: Result<Path<u64>, PathRejection>, headers: HeaderMap, body: Result<Bytes, BytesRejection>) -> Res<Json<Value>> {
+#[utoipa::path(post, path = "/v1/sessions/{id}/select", summary = "The context plan the session's policy would choose for a query pose (dry run)",
+    params(("id" = u64, Path, description = "session id", minimum = 0, maximum = 9223372036854775807_u64)),
+    request_body = SelectRequest,
+    responses(
+        (status = 200, body = Selected),
+        (status = 400, description = "a field is missing or wrong (the body names it)", body = ErrorBody),
+        (status = 404, description = "no such session", body = ErrorBody),
+        (status = 413, description = "the body is larger than the server's limit", body = ErrorBody),
+        (status = 415, description = "the body is not application/json", body = ErrorBody),
+        (status = 429, description = "too many requests queued on the session", body = ErrorBody)))]
+pub async fn select(State(st): St, id: Result<Path<u64>, PathRejection>, headers: HeaderMap, body: Result<Bytes, BytesRejection>) -> Res<Json<Selected>> {
     let id = session_id(id)?;
     let req: SelectRequest = parse(&headers, body)?;
     let pose = pose_from(&req.pose, "pose")?;
@@ -395,10 +505,13 @@ async fn select(State(st): St, id: Result<Path<u64>, PathRejection>, headers: He
         let t = Instant::now();
         let frustum = s.frustum(pose)?;
         let (plan, stats) = s.memory.select(&s.policy, &frustum, None);
-        Ok(json!({
-            "session": id, "plan": plan_json(&s.policy, &plan), "exact_evaluations": stats.overlap_evaluations,
-            "candidates": s.frames.len(), "select_ms": t.elapsed().as_secs_f64() * 1e3,
-        }))
+        Ok(Selected {
+            session: id,
+            plan: PlanAnswer::of(&s.policy, &plan),
+            exact_evaluations: stats.overlap_evaluations,
+            candidates: s.frames.len(),
+            select_ms: t.elapsed().as_secs_f64() * 1e3,
+        })
     })
     .await?;
     st.metrics.selects.fetch_add(1, Ordering::Relaxed);
@@ -406,7 +519,8 @@ async fn select(State(st): St, id: Result<Path<u64>, PathRejection>, headers: He
 }
 
 fn frame_ids(p: Result<Path<(u64, u64)>, PathRejection>) -> Res<(u64, u64)> {
-    p.map(|Path(v)| v).map_err(|_| ApiError::bad("index", "session ids and frame indices are whole numbers"))
+    let (id, index) = p.map(|Path(v)| v).map_err(|_| ApiError::bad("index", format!("session ids and frame indices are whole numbers from 0 to {MAX_ID}")))?;
+    Ok((check_id("session", id)?, check_id("index", index)?))
 }
 
 /// A stored frame of a live session, read off the async workers; 404 naming what is missing.
@@ -419,22 +533,43 @@ async fn stored_frame(st: &Arc<AppState>, p: Result<Path<(u64, u64)>, PathReject
     Ok((id, index, f))
 }
 
-async fn frame(State(st): St, p: Result<Path<(u64, u64)>, PathRejection>) -> Res<Json<Value>> {
+#[utoipa::path(get, path = "/v1/sessions/{id}/frames/{index}", summary = "One stored frame: time, source (observed/generated), pose, action",
+    params(("id" = u64, Path, description = "session id", minimum = 0, maximum = 9223372036854775807_u64),
+           ("index" = u64, Path, description = "frame index in the session", minimum = 0, maximum = 9223372036854775807_u64)),
+    responses((status = 200, body = FrameInfo), (status = 400, description = "the id or index is not a whole number in range", body = ErrorBody),
+        (status = 404, description = "no such session, frame (or depth, or true frame)", body = ErrorBody)))]
+pub async fn frame(State(st): St, p: Result<Path<(u64, u64)>, PathRejection>) -> Res<Json<FrameInfo>> {
     let (id, index, f) = stored_frame(&st, p).await?;
     let pose = crate::session::pose_of(&f.meta)?;
-    Ok(Json(json!({
-        "session": id, "index": index, "time": f.meta.time, "source": f.meta.source, "pose": pose_json(&pose),
-        "action": f.meta.action, "has_latent": !f.latent.is_empty(), "image": format!("/v1/sessions/{id}/frames/{index}/image"),
-        "depth": (!f.depth_png16.is_empty()).then(|| format!("/v1/sessions/{id}/frames/{index}/depth")),
-    })))
+    Ok(Json(FrameInfo {
+        session: id,
+        index,
+        time: f.meta.time,
+        source: f.meta.source.clone(),
+        pose: PoseAnswer::of(&pose),
+        action: f.meta.action.clone(),
+        has_latent: !f.latent.is_empty(),
+        image: format!("/v1/sessions/{id}/frames/{index}/image"),
+        depth: (!f.depth_png16.is_empty()).then(|| format!("/v1/sessions/{id}/frames/{index}/depth")),
+    }))
 }
 
-async fn frame_image(State(st): St, p: Result<Path<(u64, u64)>, PathRejection>) -> Res<Response> {
+#[utoipa::path(get, path = "/v1/sessions/{id}/frames/{index}/image", summary = "A stored frame's image (PNG)",
+    params(("id" = u64, Path, description = "session id", minimum = 0, maximum = 9223372036854775807_u64),
+           ("index" = u64, Path, description = "frame index in the session", minimum = 0, maximum = 9223372036854775807_u64)),
+    responses((status = 200, description = "the frame", content_type = "image/png", body = Vec<u8>), (status = 400, description = "the id or index is not a whole number in range", body = ErrorBody),
+        (status = 404, description = "no such session, frame (or depth, or true frame)", body = ErrorBody)))]
+pub async fn frame_image(State(st): St, p: Result<Path<(u64, u64)>, PathRejection>) -> Res<Response> {
     let (_, _, f) = stored_frame(&st, p).await?;
     Ok(([(header::CONTENT_TYPE, "image/png")], f.png).into_response())
 }
 
-async fn frame_depth(State(st): St, p: Result<Path<(u64, u64)>, PathRejection>) -> Res<Response> {
+#[utoipa::path(get, path = "/v1/sessions/{id}/frames/{index}/depth", summary = "A stored frame's depth: 16-bit grayscale PNG in millimetres (0 = unknown)",
+    params(("id" = u64, Path, description = "session id", minimum = 0, maximum = 9223372036854775807_u64),
+           ("index" = u64, Path, description = "frame index in the session", minimum = 0, maximum = 9223372036854775807_u64)),
+    responses((status = 200, description = "the depth", content_type = "image/png", body = Vec<u8>), (status = 400, description = "the id or index is not a whole number in range", body = ErrorBody),
+        (status = 404, description = "no such session, frame (or depth, or true frame)", body = ErrorBody)))]
+pub async fn frame_depth(State(st): St, p: Result<Path<(u64, u64)>, PathRejection>) -> Res<Response> {
     let (id, index, f) = stored_frame(&st, p).await?;
     if f.depth_png16.is_empty() {
         return Err(ApiError::not_found("depth", format!("frame {index} of session {id} was stored without depth")));
@@ -444,7 +579,12 @@ async fn frame_depth(State(st): St, p: Result<Path<(u64, u64)>, PathRejection>) 
 
 /// The synthetic world's true frame at a stored frame's pose, so a user can
 /// see how far generated frames drift; 404 for sessions of real frames.
-async fn frame_truth(State(st): St, p: Result<Path<(u64, u64)>, PathRejection>) -> Res<Response> {
+#[utoipa::path(get, path = "/v1/sessions/{id}/frames/{index}/truth", summary = "A synthetic session's true frame at a stored frame's pose (PNG)",
+    params(("id" = u64, Path, description = "session id", minimum = 0, maximum = 9223372036854775807_u64),
+           ("index" = u64, Path, description = "frame index in the session", minimum = 0, maximum = 9223372036854775807_u64)),
+    responses((status = 200, description = "the world's frame", content_type = "image/png", body = Vec<u8>), (status = 400, description = "the id or index is not a whole number in range", body = ErrorBody),
+        (status = 404, description = "no such session, frame (or depth, or true frame)", body = ErrorBody)))]
+pub async fn frame_truth(State(st): St, p: Result<Path<(u64, u64)>, PathRejection>) -> Res<Response> {
     let (id, _, f) = stored_frame(&st, p).await?;
     let pose = crate::session::pose_of(&f.meta)?;
     let slot = slot(&st, id)?;
@@ -461,12 +601,191 @@ async fn frame_truth(State(st): St, p: Result<Path<(u64, u64)>, PathRejection>) 
     Ok(([(header::CONTENT_TYPE, "image/png")], png).into_response())
 }
 
-#[cfg(test)]
-mod tests {
-    #[test]
-    fn the_openapi_document_is_json_with_every_endpoint() {
-        let doc: serde_json::Value = serde_json::from_str(super::OPENAPI).unwrap();
-        assert_eq!(doc["openapi"], "3.1.0");
-        assert_eq!(doc["paths"].as_object().unwrap().len(), 11);
+// ---- answers -------------------------------------------------------------
+
+/// Every refusal: the field at fault (a JSON path into the request, or
+/// `session`, `index`, `content-type`, ...) and what is wrong with it.
+#[derive(Serialize, ToSchema)]
+pub struct ErrorBody {
+    pub error: ErrorDetail,
+}
+
+#[derive(Serialize, ToSchema)]
+pub struct ErrorDetail {
+    #[schema(example = "action.yaw_deg")]
+    pub field: String,
+    pub message: String,
+}
+
+#[derive(Serialize, ToSchema)]
+pub struct Health {
+    #[schema(example = "ok")]
+    pub status: String,
+    /// The model's name, or null for a memory-only server.
+    pub model: Option<String>,
+    /// The execution provider that runs the denoiser (cpu, cuda), or null.
+    pub provider: Option<String>,
+    /// Live sessions.
+    pub sessions: usize,
+}
+
+#[derive(Serialize, ToSchema)]
+pub struct Created {
+    pub session: u64,
+    /// Frames stored with the session.
+    pub frames: usize,
+}
+
+#[derive(Serialize, ToSchema)]
+pub struct SessionInfo {
+    pub session: u64,
+    pub frames: usize,
+    #[schema(schema_with = openapi::resolved_policy_ref)]
+    pub policy: Policy,
+    /// The synthetic world's seed; null for a session of real frames.
+    pub world_seed: Option<u64>,
+    #[schema(schema_with = openapi::camera_ref)]
+    pub intrinsics: Intrinsics,
+    /// Whether stored frames carry latents (a model was loaded when they came).
+    pub has_latents: bool,
+}
+
+/// A camera pose as the server answers it: OpenCV camera-to-world.
+#[derive(Serialize, ToSchema)]
+pub struct PoseAnswer {
+    /// Row-major 3×3 rotation.
+    pub rotation: [[f64; 3]; 3],
+    /// The camera centre in world units.
+    pub position: [f64; 3],
+}
+
+impl PoseAnswer {
+    fn of(p: &Pose) -> PoseAnswer {
+        PoseAnswer { rotation: p.rotation_rows(), position: p.position().to_array() }
     }
+}
+
+/// One context slot: its rate and the stored frame in it (null when empty).
+#[derive(Serialize, ToSchema)]
+pub struct SlotAnswer {
+    pub slot: usize,
+    /// Compression rate: 1, 4 or 16.
+    pub rate: u32,
+    pub frame: Option<u64>,
+    pub time: Option<u64>,
+    /// Share of the query view the frame's frustum covers.
+    pub overlap: Option<f64>,
+    pub score: Option<f64>,
+}
+
+#[derive(Serialize, ToSchema)]
+pub struct PlanAnswer {
+    #[schema(example = "worldpack")]
+    pub policy: String,
+    pub slots: Vec<SlotAnswer>,
+}
+
+impl PlanAnswer {
+    fn of(policy: &Policy, plan: &ContextPlan) -> PlanAnswer {
+        let slots = plan
+            .slots
+            .iter()
+            .enumerate()
+            .map(|(i, s)| SlotAnswer {
+                slot: i,
+                rate: s.rate,
+                frame: s.frame.map(|f| f.id),
+                time: s.frame.map(|f| f.time),
+                overlap: s.frame.map(|f| f.overlap),
+                score: s.frame.map(|f| f.score),
+            })
+            .collect();
+        PlanAnswer { policy: policy.kind.name().to_string(), slots }
+    }
+}
+
+#[derive(Serialize, ToSchema)]
+pub struct Selection {
+    pub plan: PlanAnswer,
+    /// The model's context layout the plan was packed into.
+    pub layout: String,
+    /// Exact frustum-overlap evaluations the selection needed.
+    pub exact_evaluations: usize,
+}
+
+#[derive(Serialize, ToSchema)]
+pub struct StepTimings {
+    pub select: f64,
+    pub sample: f64,
+    pub decode: f64,
+    pub store: f64,
+    /// From the request's arrival to the answer.
+    pub total: f64,
+}
+
+/// A synthetic session's generated frame against the world's true frame at its pose.
+#[derive(Serialize, ToSchema)]
+pub struct TruthAnswer {
+    pub psnr_db: f64,
+    pub ssim: f64,
+    /// Path of the true frame's PNG.
+    pub image: String,
+}
+
+#[derive(Serialize, ToSchema)]
+pub struct StepAnswer {
+    pub session: u64,
+    /// The new frame's index in the session.
+    pub index: u64,
+    pub time: u64,
+    pub pose: PoseAnswer,
+    /// `generated`.
+    pub source: String,
+    /// The generated frame, a base64 PNG.
+    #[schema(content_encoding = "base64")]
+    pub image_png: String,
+    /// Sampler steps used.
+    pub steps: usize,
+    pub provider: Option<String>,
+    pub selection: Selection,
+    /// Milliseconds.
+    pub timings_ms: StepTimings,
+    /// Synthetic sessions only (null otherwise).
+    pub truth: Option<TruthAnswer>,
+}
+
+#[derive(Serialize, ToSchema)]
+pub struct Observed {
+    pub session: u64,
+    pub index: u64,
+    pub time: u64,
+    /// Whether the frame was encoded (a model is loaded).
+    pub has_latent: bool,
+}
+
+#[derive(Serialize, ToSchema)]
+pub struct Selected {
+    pub session: u64,
+    pub plan: PlanAnswer,
+    pub exact_evaluations: usize,
+    /// Stored frames the policy chose from.
+    pub candidates: usize,
+    pub select_ms: f64,
+}
+
+#[derive(Serialize, ToSchema)]
+pub struct FrameInfo {
+    pub session: u64,
+    pub index: u64,
+    pub time: u64,
+    /// `observed` (sent by a caller) or `generated` (made by the model).
+    pub source: String,
+    pub pose: PoseAnswer,
+    /// The action that led to the frame: forward, back, left, right, jump (0/1), yaw and pitch deltas (degrees).
+    pub action: Option<Vec<f32>>,
+    pub has_latent: bool,
+    /// Path of the frame's PNG.
+    pub image: String,
+    /// Path of its 16-bit depth PNG, when it was stored with depth.
+    pub depth: Option<String>,
 }

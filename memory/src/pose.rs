@@ -101,7 +101,15 @@ impl Pose {
         check_finite("tvec", &tvec)?;
         let r_wc = rodrigues(DVec3::from_array(rvec));
         let r_cw = r_wc.transpose();
-        Ok(Pose { rotation: r_cw, position: -(r_cw * DVec3::from_array(tvec)) })
+        let position = -(r_cw * DVec3::from_array(tvec));
+        // Finite inputs can still overflow: |rvec| beyond f64 makes a NaN rotation, a huge tvec an infinite centre.
+        if !r_cw.is_finite() {
+            return Err(InputError::invalid("rvec", "too large: the rotation it makes overflows"));
+        }
+        if !position.is_finite() {
+            return Err(InputError::invalid("tvec", "too large: the camera centre it makes overflows"));
+        }
+        Ok(Pose { rotation: r_cw, position })
     }
 
     /// The inverse of [`Pose::from_opencv_extrinsics`]; the angle of `rvec` is in `[0, π]`.
@@ -382,6 +390,16 @@ mod tests {
         let p = DVec3::new(0.3, 2.0, -5.0);
         let via_ext = rodrigues(DVec3::from_array(rvec)) * p + DVec3::from_array(tvec);
         assert!((via_ext - pose.world_to_camera(p)).length() < 1e-12);
+    }
+
+    #[test]
+    fn extrinsics_that_overflow_are_refused_by_name() {
+        // Finite inputs, found by schemathesis: |rvec| overflows to infinity and the rotation turns NaN.
+        let err = Pose::from_opencv_extrinsics([0.0, 1.7976931348623157e308, 1.7976931348623157e308], [0.0; 3]).unwrap_err();
+        assert_eq!(err.field(), "rvec");
+        let err = Pose::from_opencv_extrinsics([0.0, std::f64::consts::FRAC_PI_4, 0.0], [1.7e308, 0.0, 1.7e308]).unwrap_err();
+        assert_eq!(err.field(), "tvec", "{err}");
+        assert!(Pose::from_opencv_extrinsics([1e26, -3.0, 0.5], [1e9, 0.0, -1e9]).is_ok(), "large but representable is a pose");
     }
 
     #[test]

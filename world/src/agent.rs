@@ -24,6 +24,7 @@ pub const MAX_TURN_DEG: f64 = 12.0;
 /// One step's controls, LoopNav's action space: movement keys, jump, and
 /// camera deltas in degrees (yaw in Minecraft's sense, positive pitch down).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct Action {
     #[serde(default)]
     pub forward: bool,
