@@ -93,33 +93,16 @@ class Canvas:
         Path(path).write_text("\n".join(out) + "\n")
 
 
-def front(points):
-    """Indices of points no other point beats on both latency (lower) and PSNR (higher)."""
-    keep = []
-    for i, p in enumerate(points):
-        if not any(q["latency_ms"] <= p["latency_ms"] and q["psnr"] >= p["psnr"] and (q["latency_ms"] < p["latency_ms"] or q["psnr"] > p["psnr"])
-                   for q in points):
-            keep.append(i)
-    return sorted(keep, key=lambda i: points[i]["latency_ms"])
+def on_front(points, flag):
+    """Indices of the points study.json marks on a front (`pareto` or `pareto_learned`), fastest first."""
+    return sorted((i for i, p in enumerate(points) if p[flag]), key=lambda i: points[i]["latency_ms"])
 
 
-def learned(points):
-    return [p for p in points if p["group"] != "reference"]
-
-
-def recommend(points):
-    """The fastest learned point on the learned front whose paired interval
-    against the baseline overlaps that of the most accurate learned point:
-    the least model and fewest steps the measurements cannot tell from the best."""
-    ps = learned(points)
-    on = [ps[i] for i in front(ps)]
-    best = max(ps, key=lambda p: p["psnr"])
-    b = best["psnr_vs_baseline"]
-    for p in on:  # fastest first
-        iv = p["psnr_vs_baseline"]
-        if iv["hi"] >= b["lo"]:
-            return p, best
-    return best, best
+def recommended(study):
+    """The recommended point and the most accurate learned one, as `worldpack study` chose them."""
+    by_name = {p["name"]: p for p in study["tradeoff"]}
+    r = study["recommended"]
+    return by_name[r["name"]], by_name[r["best"]]
 
 
 def chart(study, png, svg):
@@ -147,12 +130,12 @@ def chart(study, png, svg):
     c.line((L, T), (L, H - B), (0, 0, 0))
     c.text((L + (W - L - R) / 2, H - 15), "milliseconds per predicted frame, batch 1, one CPU thread (log scale)", 12, anchor="middle")
     c.text((12, T - 20), f"Return-leg PSNR (dB), teacher-forced, {study['targets']} targets over {study['trajectories']} trajectories", 13)
-    for name, idx, dash in (("all", front(pts), False), ("learned", [pts.index(p) for p in [learned(pts)[i] for i in front(learned(pts))]], True)):
+    for idx, dash in ((on_front(pts, "pareto"), False), (on_front(pts, "pareto_learned"), True)):
         line = [px(pts[i]["latency_ms"], pts[i]["psnr"]) for i in idx]
         for a, b in zip(line, line[1:]):
             c.line(a, (b[0], a[1]), (120, 120, 120), 1, dash)
             c.line((b[0], a[1]), b, (120, 120, 120), 1, dash)
-    rec, _ = recommend(pts)
+    rec, _ = recommended(study)
     # Labels go where they hit no other label or point and stay inside the plot.
     taken = [(q[0] - 6, q[1] - 6, q[0] + 6, q[1] + 6) for q in (px(p["latency_ms"], p["psnr"]) for p in pts)]
     offsets = [(8, -6, "start"), (8, 12, "start"), (-8, -6, "end"), (-8, 12, "end"), (8, -18, "start"), (-8, -18, "end"),
@@ -200,7 +183,7 @@ def markdown(study, pictures, rel):
     """Markdown lines for docs/results.md; writes the chart into `pictures` (linked as `rel`)."""
     chart(study, pictures / "tradeoff.png", pictures / "tradeoff.svg")
     pts = study["tradeoff"]
-    rec, best = recommend(pts)
+    rec, best = recommended(study)
     lines = ["## Speed against accuracy", "",
              f"Every point is the teacher-forced probe (docs/probe.md) on the same {study['targets']} return-leg targets "
              f"(every {study['stride']}th frame of {study['trajectories']} trajectories), {study['sampler']['steps']} "
@@ -209,11 +192,8 @@ def markdown(study, pictures, rel):
              "steadier than two on this 2-core CPU).", "",
              f"![speed against accuracy]({rel}/tradeoff.png) ([SVG]({rel}/tradeoff.svg))", "",
              "| configuration | what varies | ms/frame | PSNR | SSIM | ΔPSNR vs baseline [95%] | on the front |", "|---|---|---|---|---|---|---|"]
-    on_all = set(front(pts))
-    ls = learned(pts)
-    on_learned = {pts.index(ls[i]) for i in front(ls)}
-    for i, p in sorted(enumerate(pts), key=lambda x: x[1]["latency_ms"]):
-        mark = "all" if i in on_all else "learned" if i in on_learned else ""
+    for p in sorted(pts, key=lambda p: p["latency_ms"]):
+        mark = "all" if p["pareto"] else "learned" if p["pareto_learned"] else ""
         params = f", {p['parameters'] / 1e6:.2f} M" if p.get("parameters") else ""
         lines.append(f"| {short(p['name'])}{params} | {p['group'].replace('_', ' ')} | {p['latency_ms']:.2f} | {p['psnr']:.2f} | {p['ssim']:.3f} | "
                      f"{iv(p['psnr_vs_baseline']) if p['name'] != 'baseline' else '—'} | {mark} |")
@@ -228,7 +208,7 @@ def markdown(study, pictures, rel):
                   f"{rec['steps']} steps can score above {study['sampler']['steps']} while looking blurrier; too few steps "
                   "(see the 2-step rows) break down entirely. A perceptual metric would weigh sharpness, but none of the "
                   "feature networks can be downloaded here ([metrics.md](metrics.md))."]
-    refs = [pts[i] for i in on_all if pts[i]["group"] == "reference"]
+    refs = [p for p in pts if p["pareto"] and p["group"] == "reference"]
     if refs:
         lines += ["", "On the front of all points the non-learned references " + " and ".join(short(r["name"]) for r in refs) +
                   " sit ahead of every model: at 64×64 with true poses, warping a stored frame with its depth is both faster and "

@@ -330,6 +330,23 @@ fn study_pairs_every_condition_and_resumes() {
     for name in ["baseline", "nearest_frame_packing", "copy", "reproject"] {
         assert!(row(name)["psnr_vs_recency"].is_null(), "{name} is not a selection policy compared with recency");
     }
+    // The recommendation is a learned point of the learned front; the report draws what study.json says.
+    let recommended = study["recommended"]["name"].as_str().unwrap();
+    let point = study["tradeoff"].as_array().unwrap().iter().find(|p| p["name"] == recommended).unwrap();
+    assert!(point["pareto_learned"].as_bool().unwrap() && point["group"] != "reference", "{point}");
+    let python = root().join(".venv/bin/python");
+    if python.exists() {
+        let pictures = out.join("pictures");
+        let report = Command::new(python)
+            .args(["scripts/study_report.py", out.join("study.json").to_str().unwrap(), pictures.to_str().unwrap()])
+            .current_dir(root())
+            .output()
+            .unwrap();
+        assert!(report.status.success(), "{}", String::from_utf8_lossy(&report.stderr));
+        let text = String::from_utf8_lossy(&report.stdout);
+        assert!(text.contains("**Recommended default: "), "{text}");
+        assert!(pictures.join("tradeoff.png").exists() && pictures.join("tradeoff.svg").exists());
+    }
 
     // A second run reuses every condition and reports the same numbers.
     let log = ok(&args);

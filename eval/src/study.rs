@@ -325,6 +325,7 @@ pub fn study(o: &Settings, progress: &dyn Fn(Progress)) -> Result<Summary> {
         "noise": summary.noise,
         "strata": summary.strata,
         "rollouts": summary.rollouts,
+        "recommended": summary.recommended,
         "rollout_frames": o.rollout_frames,
         "wall_s": results.iter().map(|(c, s)| (c.name.clone(), s.wall_s)).collect::<Vec<_>>(),
     });
@@ -568,6 +569,19 @@ pub struct TradeoffPoint {
     pub steps: Option<usize>,
     /// No other point is both at least as fast and at least as accurate (and better in one).
     pub pareto: bool,
+    /// The same among the learned points only (the references left out).
+    pub pareto_learned: bool,
+}
+
+/// The configuration the study recommends serving.
+#[derive(Serialize)]
+pub struct Recommendation {
+    /// The trade-off point's name.
+    pub name: String,
+    /// The most accurate learned point, which it could not be told from.
+    pub best: String,
+    /// Whether it is that point itself.
+    pub is_best: bool,
 }
 
 #[derive(Serialize)]
@@ -620,17 +634,38 @@ pub struct Summary {
     pub noise: Vec<NoiseCondition>,
     pub strata: Vec<StratumSummary>,
     pub rollouts: Vec<RolloutCondition>,
+    pub recommended: Option<Recommendation>,
 }
 
-/// Marks the points no other point beats: none is at least as fast and at
-/// least as accurate, and better in one. A point without a latency (NaN) is
-/// never on the front and never beats one.
+/// Whether each (latency, PSNR) point is on the Pareto front: no other point
+/// is at least as fast and at least as accurate, and better in one. A point
+/// without a latency (NaN) is never on the front and never beats one.
+pub fn pareto_front(points: &[(f64, f64)]) -> Vec<bool> {
+    let dominated = |p: &(f64, f64), q: &(f64, f64)| q.0 <= p.0 && q.1 >= p.1 && (q.0 < p.0 || q.1 > p.1);
+    points.iter().map(|p| p.0.is_finite() && !points.iter().any(|q| dominated(p, q))).collect()
+}
+
+/// Marks both fronts: of all points, and of the learned ones.
 pub fn mark_pareto_front(points: &mut [TradeoffPoint]) {
-    let dominated = |p: &TradeoffPoint, q: &TradeoffPoint| q.latency_ms <= p.latency_ms && q.psnr >= p.psnr && (q.latency_ms < p.latency_ms || q.psnr > p.psnr);
-    let front: Vec<bool> = points.iter().map(|p| p.latency_ms.is_finite() && !points.iter().any(|q| dominated(p, q))).collect();
-    for (p, f) in points.iter_mut().zip(front) {
-        p.pareto = f;
+    let all: Vec<(f64, f64)> = points.iter().map(|p| (p.latency_ms, p.psnr)).collect();
+    let learned: Vec<(f64, f64)> = points.iter().map(|p| if p.group == Group::Reference { (f64::NAN, f64::NAN) } else { (p.latency_ms, p.psnr) }).collect();
+    for ((p, a), l) in points.iter_mut().zip(pareto_front(&all)).zip(pareto_front(&learned)) {
+        p.pareto = a;
+        p.pareto_learned = l && p.group != Group::Reference;
     }
+}
+
+/// The least model and fewest steps the measurements cannot tell from the
+/// best: the fastest point of the learned front whose interval against the
+/// baseline reaches the most accurate learned point's interval; that point
+/// itself when none does. `None` without learned points. Expects the fronts marked.
+pub fn recommend(points: &[TradeoffPoint]) -> Option<Recommendation> {
+    let learned = || points.iter().filter(|p| p.group != Group::Reference && p.latency_ms.is_finite());
+    let best = learned().max_by(|a, b| a.psnr.total_cmp(&b.psnr))?;
+    let mut front: Vec<&TradeoffPoint> = learned().filter(|p| p.pareto_learned).collect();
+    front.sort_by(|a, b| a.latency_ms.total_cmp(&b.latency_ms));
+    let pick = front.into_iter().find(|p| p.psnr_vs_baseline.hi >= best.psnr_vs_baseline.lo).unwrap_or(best);
+    Some(Recommendation { name: pick.name.clone(), best: best.name.clone(), is_best: std::ptr::eq(pick, best) })
 }
 
 /// Per-trajectory paired differences of row `a` in `x` and row `b` in `y`,
@@ -673,6 +708,7 @@ fn summarise(results: &[(Condition, Saved)], strata: &[Vec<TargetFeatures>], par
                 parameters,
                 steps,
                 pareto: false,
+                pareto_learned: false,
             });
         }
     }
@@ -742,7 +778,8 @@ fn summarise(results: &[(Condition, Saved)], strata: &[Vec<TargetFeatures>], par
             }
         })
         .collect();
-    Summary { tradeoff, noise, strata, rollouts }
+    let recommended = recommend(&tradeoff);
+    Summary { tradeoff, noise, strata, rollouts, recommended }
 }
 
 fn load(dir: &Path, runtime: RuntimeOptions) -> Result<Model> {
@@ -766,6 +803,7 @@ mod tests {
             parameters: None,
             steps: None,
             pareto: false,
+            pareto_learned: false,
         }
     }
 
@@ -783,6 +821,30 @@ mod tests {
         mark_pareto_front(&mut points);
         let front: Vec<&str> = points.iter().filter(|p| p.pareto).map(|p| p.name.as_str()).collect();
         assert_eq!(front, ["a", "b", "fastest", "a twin of a"]);
+    }
+
+    #[test]
+    fn the_recommendation_is_the_fastest_learned_point_the_best_cannot_be_told_from() {
+        let with = |mut p: TradeoffPoint, group: Group, lo: f64, hi: f64| {
+            p.group = group;
+            p.psnr_vs_baseline = Interval { mean: (lo + hi) / 2.0, lo, hi, clusters: 10, values: 100 };
+            p
+        };
+        let mut points = vec![
+            with(point("reference", 1.0, 20.0), Group::Reference, 5.0, 6.0),
+            with(point("best", 30.0, 13.0), Group::Policy, 0.8, 1.2),
+            with(point("close and faster", 10.0, 12.9), Group::Steps, 0.6, 0.9),
+            with(point("fastest, clearly worse", 2.0, 10.0), Group::Steps, -2.0, -1.0),
+        ];
+        mark_pareto_front(&mut points);
+        assert!(!points[1].pareto && points[1].pareto_learned, "the reference beats every model; among models it is on the front");
+        assert!(!points[0].pareto_learned);
+        let r = recommend(&points).unwrap();
+        assert_eq!((r.name.as_str(), r.best.as_str(), r.is_best), ("close and faster", "best", false));
+        // Once nothing faster overlaps, the best itself.
+        points[2].psnr_vs_baseline.hi = 0.7;
+        let r = recommend(&points).unwrap();
+        assert_eq!((r.name.as_str(), r.is_best), ("best", true));
     }
 
     fn spec(name: &str, group: Group) -> RowSpec {
@@ -869,6 +931,9 @@ mod tests {
         assert_eq!(wp.psnr_vs_baseline.mean, 2.0);
         let front: Vec<&str> = s.tradeoff.iter().filter(|p| p.pareto).map(|p| p.name.as_str()).collect();
         assert_eq!(front, ["worldpack", "copy"]);
+        let learned: Vec<&str> = s.tradeoff.iter().filter(|p| p.pareto_learned).map(|p| p.name.as_str()).collect();
+        assert_eq!(learned, ["baseline", "nearest_frame_packing", "worldpack"]);
+        assert_eq!(s.recommended.as_ref().unwrap().best, "worldpack");
 
         // The noise condition pairs every row with the same row without noise.
         assert_eq!(s.noise.len(), 1);
