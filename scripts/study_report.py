@@ -22,15 +22,12 @@ GROUP_LABEL = {
     "policy": "context policy (own weights, 10 steps)", "keep_last": "WorldPack, newest frame kept", "steps": "WorldPack, sampler steps",
     "estimator": "WorldPack, Monte Carlo overlap", "far": "WorldPack, frustum far", "size": "WorldPack, smaller model", "reference": "non-learned reference",
 }
-SHORT = {"baseline": "baseline", "nearest_frame_packing": "NFP", "memory_retrieval": "MR", "worldpack": "WorldPack",
-         "worldpack_keep_last": "keep-last", "worldmem_greedy": "WorldMem greedy", "copy": "copy", "reproject": "reproject",
-         "worldpack_tiny": "WP tiny"}
+# Point labels come from `worldpack study` (study.json: labels; memory::short_label in Rust).
+LABELS: dict[str, str] = {}
 
 
 def short(name):
-    if name in SHORT:
-        return SHORT[name]
-    return name.replace("worldpack_keep_last, ", "keep-last ").replace("worldpack, ", "WP ").replace("Monte Carlo ", "MC ")
+    return LABELS.get(name, name)
 
 
 class Canvas:
@@ -181,6 +178,7 @@ def iv(i):
 
 def markdown(study, pictures, rel):
     """Markdown lines for docs/results.md; writes the chart into `pictures` (linked as `rel`)."""
+    LABELS.update(study.get("labels", {}))
     chart(study, pictures / "tradeoff.png", pictures / "tradeoff.svg")
     pts = study["tradeoff"]
     rec, best = recommended(study)

@@ -326,6 +326,7 @@ pub fn study(o: &Settings, progress: &dyn Fn(Progress)) -> Result<Summary> {
         "strata": summary.strata,
         "rollouts": summary.rollouts,
         "recommended": summary.recommended,
+        "labels": summary.tradeoff.iter().map(|p| (p.name.clone(), memory::short_label(&p.name))).collect::<std::collections::BTreeMap<_, _>>(),
         "rollout_frames": o.rollout_frames,
         "wall_s": results.iter().map(|(c, s)| (c.name.clone(), s.wall_s)).collect::<Vec<_>>(),
     });

@@ -34,4 +34,4 @@ pub use index::{FrameMemory, SelectionStats};
 pub use overlap::Estimator;
 pub use policy::{ContextPlan, LatentGrid, MemoryFrame, Packing, Policy, PolicyKind, PolicySpec, Query, Ranking, ScoreWeights, select};
 pub use pose::{AngleUnit, Pose, Pose5, Pose5Convention};
-pub use variants::{VARIANTS, Variant, variant};
+pub use variants::{VARIANTS, Variant, short_label, variant};

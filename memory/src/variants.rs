@@ -10,8 +10,10 @@ use crate::policy::{Policy, PolicyKind, Query};
 pub struct Variant {
     /// As users and files write it (`worldpack`, `plan-worldpack.npy`, `fixtures/variants/worldpack`).
     pub name: &'static str,
-    /// As tables and charts show it.
+    /// As tables show it.
     pub label: &'static str,
+    /// As a chart's point labels show it.
+    pub short: &'static str,
     pub kind: PolicyKind,
     pub query: Query,
     pub keep_last: bool,
@@ -25,23 +27,23 @@ impl Variant {
     }
 }
 
-const fn row(name: &'static str, label: &'static str, kind: PolicyKind, query: Query, keep_last: bool, weights: &'static str) -> Variant {
-    Variant { name, label, kind, query, keep_last, weights }
+const fn row(name: &'static str, label: &'static str, short: &'static str, kind: PolicyKind, query: Query, keep_last: bool, weights: &'static str) -> Variant {
+    Variant { name, label, short, kind, query, keep_last, weights }
 }
 
 /// In the paper's order, then WorldMem's, then the look-ahead options.
 pub const VARIANTS: &[Variant] = &[
-    row("baseline", "Baseline (4 newest)", PolicyKind::Baseline, Query::Target, false, "baseline"),
-    row("nearest_frame_packing", "Nearest frame packing", PolicyKind::NearestFramePacking, Query::Target, false, "nearest_frame_packing"),
-    row("memory_retrieval", "Memory retrieval", PolicyKind::MemoryRetrieval, Query::Current, false, "memory_retrieval"),
-    row("worldpack", "WorldPack", PolicyKind::WorldPack, Query::Current, false, "worldpack"),
+    row("baseline", "Baseline (4 newest)", "baseline", PolicyKind::Baseline, Query::Target, false, "baseline"),
+    row("nearest_frame_packing", "Nearest frame packing", "NFP", PolicyKind::NearestFramePacking, Query::Target, false, "nearest_frame_packing"),
+    row("memory_retrieval", "Memory retrieval", "MR", PolicyKind::MemoryRetrieval, Query::Current, false, "memory_retrieval"),
+    row("worldpack", "WorldPack", "WorldPack", PolicyKind::WorldPack, Query::Current, false, "worldpack"),
     // WorldMem's greedy selection fills four full-rate slots, like memory retrieval, so it borrows those weights.
-    row("worldmem_greedy", "WorldMem greedy", PolicyKind::WorldMemGreedy, Query::Target, false, "memory_retrieval"),
-    row("memory_retrieval_target", "Memory retrieval, target-pose query", PolicyKind::MemoryRetrieval, Query::Target, false, "memory_retrieval_target"),
-    row("worldpack_target", "WorldPack, target-pose query", PolicyKind::WorldPack, Query::Target, false, "worldpack_target"),
+    row("worldmem_greedy", "WorldMem greedy", "WorldMem greedy", PolicyKind::WorldMemGreedy, Query::Target, false, "memory_retrieval"),
+    row("memory_retrieval_target", "Memory retrieval, target-pose query", "MR target", PolicyKind::MemoryRetrieval, Query::Target, false, "memory_retrieval_target"),
+    row("worldpack_target", "WorldPack, target-pose query", "WP target", PolicyKind::WorldPack, Query::Target, false, "worldpack_target"),
     // Session 6's fix for the target-pose query dropping the newest frame;
     // Algorithm 1 keeps that frame by itself, so this stays only for the models trained so.
-    row("worldpack_keep_last", "WorldPack, target-pose query, newest kept", PolicyKind::WorldPack, Query::Target, true, "worldpack_keep_last"),
+    row("worldpack_keep_last", "WorldPack, target-pose query, newest kept", "keep-last", PolicyKind::WorldPack, Query::Target, true, "worldpack_keep_last"),
 ];
 
 /// The variant called `name`; the error lists the names.
@@ -50,6 +52,19 @@ pub fn variant(name: &str) -> Result<&'static Variant, InputError> {
         let names: Vec<&str> = VARIANTS.iter().map(|v| v.name).collect();
         InputError::invalid("policy", format!("unknown policy {name:?}; one of {}", names.join(", ")))
     })
+}
+
+/// How a chart labels a row named `name`: a variant's short label, or a
+/// variant's row with a setting after a comma (`worldpack, 4 steps` →
+/// `WorldPack 4 steps`, `Monte Carlo` as `MC`), or the name itself.
+pub fn short_label(name: &str) -> String {
+    if let Ok(v) = variant(name) {
+        return v.short.to_string();
+    }
+    match name.split_once(", ") {
+        Some((head, rest)) if variant(head).is_ok() => format!("{} {}", variant(head).map_or(head, |v| v.short), rest.replace("Monte Carlo ", "MC ")),
+        _ => name.to_string(),
+    }
 }
 
 /// The name of the variant `policy` is (same kind, query and pinning), if any.
@@ -79,6 +94,10 @@ mod tests {
             // The serde name users write in a policy spec is the registry's.
             assert_eq!(serde_json::to_value(kind).unwrap(), kind.name());
         }
+        assert_eq!(short_label("nearest_frame_packing"), "NFP");
+        assert_eq!(short_label("worldpack_keep_last, 4 steps"), "keep-last 4 steps");
+        assert_eq!(short_label("worldpack, Monte Carlo 1000"), "WorldPack MC 1000");
+        assert_eq!(short_label("worldpack_tiny"), "worldpack_tiny");
         let err = variant("bogus").unwrap_err();
         assert_eq!(err.field(), "policy");
         assert!(err.to_string().contains("worldpack_target"), "{err}");
