@@ -1,6 +1,7 @@
 //! `worldpack bench select`: selection latency against the number of stored
 //! frames, indexed against brute force, on one core.
 
+use eval::stats::percentile;
 use std::time::Instant;
 
 use memory::overlap::MonteCarlo;
@@ -39,10 +40,6 @@ pub struct Row {
     pub exact_evaluations_per_selection: f64,
     pub box_candidates_per_selection: f64,
     pub insert_us_per_frame: f64,
-}
-
-pub(crate) fn percentile(sorted: &[f64], q: f64) -> f64 {
-    sorted[((sorted.len() - 1) as f64 * q).round() as usize]
 }
 
 /// Times `f` on each query until `queries` are done or `budget_s` is spent (at least `min` runs).

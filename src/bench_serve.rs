@@ -12,9 +12,9 @@ use api::store::Store;
 use model::{Model, RuntimeOptions, Sampler};
 use serde::Serialize;
 use serde_json::{Value, json};
-use world::agent::Action;
+use motion::Action;
 
-use crate::bench::percentile;
+use eval::stats::percentile;
 
 #[derive(Serialize)]
 struct Report {

@@ -14,7 +14,7 @@ use model::manifest::LayoutSpec;
 use model::{Graph, Manifest, Method, Model, RuntimeOptions, Sampler, Tensor};
 use serde::{Deserialize, Serialize};
 
-use crate::bench::percentile;
+use eval::stats::percentile;
 
 /// Every slot present, random latents and poses: a full context of `layout`, batch 1.
 fn full_context(m: &Manifest, layout: &LayoutSpec) -> Context3 {

@@ -10,7 +10,7 @@ use anyhow::Result;
 use api::store::{FrameMeta, FrameRecord, SessionRecord, Store};
 use serde::Serialize;
 
-use crate::bench::percentile;
+use eval::stats::percentile;
 
 #[derive(Serialize)]
 struct Row {
@@ -33,7 +33,7 @@ fn sample_frame(world: &world::World, i: u64) -> FrameRecord {
     FrameRecord {
         meta: FrameMeta { c2w: player.camera().matrix_rows(), time: i, source: "generated".into(), action: Some(vec![1.0, 0.0, 0.0, 0.0, 0.0, 5.0, 0.0]), player: None },
         latent: model::generate::gaussian(i, 4 * 16 * 16),
-        png: api::engine::encode_png(&frame.rgb, 64, 64),
+        png: world::picture::encode_png(64, 64, &frame.rgb),
         depth_png16: Vec::new(),
     }
 }

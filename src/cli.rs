@@ -39,3 +39,20 @@ impl Runtime {
         model::RuntimeOptions { provider: self.provider, threads: self.threads }
     }
 }
+
+/// A progress bar for `len` items of work called `what`.
+pub fn bar(len: usize, what: &str) -> indicatif::ProgressBar {
+    let bar = indicatif::ProgressBar::new(len as u64);
+    bar.set_style(
+        indicatif::ProgressStyle::with_template("{prefix} [{bar:30}] {pos}/{len} {msg} ({elapsed}, ~{eta} left)")
+            .unwrap()
+            .progress_chars("=> "),
+    );
+    bar.set_prefix(what.to_string());
+    bar
+}
+
+/// Worker threads for work spread over every core.
+pub fn threads() -> usize {
+    std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1)
+}

@@ -107,7 +107,7 @@ pub fn run(o: &Options) -> Result<()> {
             eprintln!("eval: {trajectories} trajectories, {frames_per_row} generated frames per row, {rows} rows, {} {:?} steps", o.steps, o.method)
         }
         Progress::Reused { row, path } => eprintln!("eval: reusing {row} from {}", path.display()),
-        Progress::RowStarted { row, frames } => *bar.borrow_mut() = Some(crate::sim::bar(frames, row)),
+        Progress::RowStarted { row, frames } => *bar.borrow_mut() = Some(crate::cli::bar(frames, row)),
         Progress::Frames(n) => bar.borrow().iter().for_each(|b| b.inc(n as u64)),
         Progress::RowDone => bar.borrow_mut().take().iter().for_each(|b| b.finish()),
     };
@@ -177,19 +177,7 @@ pub fn compare(a: &Path, b: &Path) -> Result<()> {
 }
 
 fn read_rgb(path: &Path) -> Result<(usize, usize, Vec<u8>)> {
-    let file = std::fs::File::open(path).with_context(|| format!("cannot open {}", path.display()))?;
-    let mut decoder = png::Decoder::new(std::io::BufReader::new(file));
-    decoder.set_transformations(png::Transformations::EXPAND | png::Transformations::STRIP_16);
-    let mut reader = decoder.read_info().with_context(|| format!("{}: not a PNG", path.display()))?;
-    let mut buf = vec![0; reader.output_buffer_size()];
-    let info = reader.next_frame(&mut buf).with_context(|| format!("{}: not a PNG", path.display()))?;
-    let (w, h) = (info.width as usize, info.height as usize);
-    let rgb = match info.color_type {
-        png::ColorType::Rgb => buf[..w * h * 3].to_vec(),
-        png::ColorType::Rgba => buf[..w * h * 4].chunks_exact(4).flat_map(|p| [p[0], p[1], p[2]]).collect(),
-        png::ColorType::Grayscale => buf[..w * h].iter().flat_map(|&g| [g, g, g]).collect(),
-        png::ColorType::GrayscaleAlpha => buf[..w * h * 2].chunks_exact(2).flat_map(|p| [p[0], p[0], p[0]]).collect(),
-        other => bail!("{}: unsupported PNG colour type {other:?}", path.display()),
-    };
-    Ok((w, h, rgb))
+    let bytes = std::fs::read(path).with_context(|| format!("cannot open {}", path.display()))?;
+    let (rgb, w, h) = world::picture::decode_rgb(&bytes).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+    Ok((w as usize, h as usize, rgb))
 }

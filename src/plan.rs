@@ -9,7 +9,7 @@ use anyhow::{Context, Result, bail};
 use memory::{FrameMemory, Frustum, Intrinsics, MemoryFrame, Policy, PolicyKind, Pose, Variant};
 use serde::Deserialize;
 
-use crate::sim::{bar, threads};
+use crate::cli::{bar, threads};
 
 pub const PLANS_FORMAT: &str = "worldpack-plans/1";
 

@@ -74,7 +74,7 @@ pub fn run(o: &Options) -> Result<()> {
     let progress = |p: Progress| match p {
         Progress::Started { trajectories, targets, rows } => {
             eprintln!("probe: {trajectories} trajectories, {targets} return-leg targets, {rows} rows, {} sampler steps ({:?})", o.steps, o.method);
-            *bar.borrow_mut() = Some(crate::sim::bar(targets * rows, "probe"));
+            *bar.borrow_mut() = Some(crate::cli::bar(targets * rows, "probe"));
         }
         Progress::Trajectory(dir) => bar.borrow().iter().for_each(|b| b.set_message(dir.to_string())),
         Progress::Predictions(n) => bar.borrow().iter().for_each(|b| b.inc(n as u64)),

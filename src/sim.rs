@@ -5,7 +5,7 @@ use std::path::Path;
 use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
-use indicatif::{ProgressBar, ProgressStyle};
+use crate::cli::{bar, threads};
 use memory::{AngleUnit, Intrinsics, Pose, Pose5, Pose5Convention};
 use world::render::{RenderSettings, cast, render};
 use world::suite::{self, Planned};
@@ -50,21 +50,6 @@ pub fn parse_task(s: &str) -> Result<Task, String> {
 
 fn intrinsics(size: (u32, u32)) -> Result<Intrinsics> {
     suite::default_intrinsics(size.0, size.1).map_err(|e| anyhow::anyhow!("--size: {e}"))
-}
-
-pub fn bar(len: usize, what: &str) -> ProgressBar {
-    let bar = ProgressBar::new(len as u64);
-    bar.set_style(
-        ProgressStyle::with_template("{prefix} [{bar:30}] {pos}/{len} {msg} ({elapsed}, ~{eta} left)")
-            .unwrap()
-            .progress_chars("=> "),
-    );
-    bar.set_prefix(what.to_string());
-    bar
-}
-
-pub fn threads() -> usize {
-    std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1)
 }
 
 fn write_plan(out: &Path, kind: &str, seed: u64, plan: &[Planned], size: (u32, u32)) -> Result<()> {

@@ -90,7 +90,7 @@ pub fn run(o: &Options) -> Result<()> {
             eprintln!("study: {trajectories} trajectories, {targets} return-leg targets, {conditions} conditions, {} {:?} steps", o.steps, o.method)
         }
         Progress::Reused { what, path } => eprintln!("study: {what} reused from {}", path.display()),
-        Progress::Begin { what, total } => *bar.borrow_mut() = Some(crate::sim::bar(total, &format!("study: {what}"))),
+        Progress::Begin { what, total } => *bar.borrow_mut() = Some(crate::cli::bar(total, &format!("study: {what}"))),
         Progress::Trajectory(dir) => bar.borrow().iter().for_each(|b| b.set_message(dir.to_string())),
         Progress::Predictions(n) => bar.borrow().iter().for_each(|b| b.inc(n as u64)),
         Progress::End => bar.borrow_mut().take().iter().for_each(|b| b.finish()),

@@ -12,7 +12,9 @@ use model::generate::frame_to_tensor;
 use model::pack::ContextFrame;
 use model::{Model, Sampler};
 use world::World;
-use world::agent::{Action, PlayerState};
+use motion::Action;
+use world::agent::PlayerState;
+use world::picture::encode_png;
 use world::render::{RenderSettings, render};
 
 use crate::error::ApiError;
@@ -89,7 +91,7 @@ impl Engine {
         let player = PlayerState::at_cell(cell, 0.0);
         let frame = render(&world, &player.camera(), &k, &RenderSettings::default());
         let latent = self.latent_of(&frame.rgb, k.width, k.height, &k, "synthetic")?;
-        let first = FrameRecord { meta: meta(&player.camera(), 0, OBSERVED, None, Some(&player)), latent, png: encode_png(&frame.rgb, k.width, k.height), depth_png16: Vec::new() };
+        let first = FrameRecord { meta: meta(&player.camera(), 0, OBSERVED, None, Some(&player)), latent, png: encode_png(k.width, k.height, &frame.rgb), depth_png16: Vec::new() };
         self.create(SessionRecord { policy, intrinsics: k, world_seed: Some(seed) }, vec![first], Some(world))
     }
 
@@ -129,7 +131,7 @@ impl Engine {
             ssim: eval::metrics::ssim(&predicted.rgb, &t, img.width, img.height).unwrap_or(f64::NAN),
         });
         let t2 = Instant::now();
-        let png = encode_png(&predicted.rgb, img.width as u32, img.height as u32);
+        let png = encode_png(img.width as u32, img.height as u32, &predicted.rgb);
         let decode_ms = prediction.decode_ms + ms(t2);
         let t3 = Instant::now();
         let index = s.frames.len() as u64;
@@ -167,7 +169,7 @@ impl Engine {
         s.frustum(pose)?;
         let time = s.next_time();
         let index = s.frames.len() as u64;
-        let record = FrameRecord { meta: meta(&pose, time, OBSERVED, action, None), latent, png: encode_png(rgb, w, h), depth_png16 };
+        let record = FrameRecord { meta: meta(&pose, time, OBSERVED, action, None), latent, png: encode_png(w, h, rgb), depth_png16 };
         self.store.put_frame(s.id, index, &record)?;
         s.push(time, pose, record.latent, None, false)?;
         Ok((index, time))
@@ -188,11 +190,3 @@ pub fn meta(pose: &Pose, time: u64, source: &str, action: Option<&Action>, playe
     }
 }
 
-pub fn encode_png(rgb: &[u8], w: u32, h: u32) -> Vec<u8> {
-    let mut out = Vec::new();
-    let mut enc = png::Encoder::new(&mut out, w, h);
-    enc.set_color(png::ColorType::Rgb);
-    enc.set_depth(png::BitDepth::Eight);
-    enc.write_header().and_then(|mut w| w.write_image_data(rgb)).expect("encoding a PNG into memory");
-    out
-}

@@ -269,7 +269,7 @@ mod tests {
         pose.resolve().unwrap();
         let k: memory::input::IntrinsicsInput = serde_json::from_value(schema("IntrinsicsInput")["example"].clone()).unwrap();
         k.resolve().unwrap();
-        let _: world::agent::Action = serde_json::from_value(schema("Action")["example"].clone()).unwrap();
+        let _: motion::Action = serde_json::from_value(schema("Action")["example"].clone()).unwrap();
         crate::session::policy_of(&schema("PolicySpec")["example"]).unwrap();
         for biome in schema("Biome")["enum"].as_array().unwrap() {
             let _: world::Biome = serde_json::from_value(biome.clone()).unwrap();

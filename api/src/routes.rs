@@ -21,12 +21,13 @@ use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
 use serde_json::Value;
 use utoipa::ToSchema;
-use world::agent::Action;
+use motion::Action;
 
 use crate::error::ApiError;
 use crate::openapi::{self, MAX_COORDINATE, MAX_ID, MAX_TURN_DEG};
 use crate::session::{Session, policy_of};
-use crate::engine::{encode_png, meta};
+use crate::engine::meta;
+use world::picture::encode_png;
 use crate::store::{FrameRecord, SessionRecord};
 use crate::{AppState, Slot};
 
@@ -140,20 +141,7 @@ async fn blocking<T: Send + 'static>(f: impl FnOnce() -> Res<T> + Send + 'static
 /// A PNG (base64) as RGB bytes, width, height.
 fn decode_png(field: &str, b64: &str) -> Res<(Vec<u8>, u32, u32)> {
     let bytes = B64.decode(b64.trim()).map_err(|e| ApiError::bad(field, format!("not base64: {e}")))?;
-    let mut reader = png::Decoder::new(std::io::Cursor::new(bytes)).read_info().map_err(|e| ApiError::bad(field, format!("not a PNG: {e}")))?;
-    let mut buf = vec![0; reader.output_buffer_size()];
-    let info = reader.next_frame(&mut buf).map_err(|e| ApiError::bad(field, format!("broken PNG: {e}")))?;
-    if info.bit_depth != png::BitDepth::Eight {
-        return Err(ApiError::bad(field, "only 8-bit PNGs are accepted"));
-    }
-    let px = (info.width * info.height) as usize;
-    let rgb = match info.color_type {
-        png::ColorType::Rgb => buf[..px * 3].to_vec(),
-        png::ColorType::Rgba => buf[..px * 4].chunks_exact(4).flat_map(|p| [p[0], p[1], p[2]]).collect(),
-        png::ColorType::Grayscale => buf[..px].iter().flat_map(|&g| [g, g, g]).collect(),
-        other => return Err(ApiError::bad(field, format!("unsupported PNG colour type {other:?}; use RGB or RGBA"))),
-    };
-    Ok((rgb, info.width, info.height))
+    world::picture::decode_rgb(&bytes).map_err(|e| ApiError::bad(field, e))
 }
 
 fn pose_from(input: &PoseInput, field: &str) -> Res<Pose> {
@@ -239,7 +227,7 @@ pub struct SyntheticStart {
 #[derive(Deserialize, ToSchema)]
 #[serde(deny_unknown_fields)]
 pub struct FrameInput {
-    /// An 8-bit RGB or RGBA PNG, base64, of the intrinsics' size.
+    /// A PNG (RGB, RGBA, grey or palette; 16-bit channels are cut to 8), base64, of the intrinsics' size.
     #[schema(content_encoding = "base64")]
     image_png: String,
     #[schema(schema_with = openapi::pose_ref)]
@@ -282,7 +270,7 @@ pub async fn create(State(st): St, headers: HeaderMap, body: Result<Bytes, Bytes
                     let pose = pose_from(&f.pose, &format!("{at}.pose"))?;
                     let (rgb, w, h) = decode_png(&format!("{at}.image_png"), &f.image_png)?;
                     let latent = e.latent_of(&rgb, w, h, &k, &format!("{at}.image_png"))?;
-                    records.push(FrameRecord { meta: meta(&pose, i as u64, "observed", None, None), latent, png: encode_png(&rgb, w, h), depth_png16: Vec::new() });
+                    records.push(FrameRecord { meta: meta(&pose, i as u64, "observed", None, None), latent, png: encode_png(w, h, &rgb), depth_png16: Vec::new() });
                 }
                 e.create(SessionRecord { policy: policy_spec, intrinsics: k, world_seed: None }, records, None)?
             }
@@ -413,7 +401,7 @@ pub async fn step(State(st): St, id: Result<Path<u64>, PathRejection>, headers: 
 #[derive(Deserialize, ToSchema)]
 #[serde(deny_unknown_fields)]
 pub struct ObserveRequest {
-    /// An 8-bit RGB or RGBA PNG, base64, of the session's image size.
+    /// A PNG (RGB, RGBA, grey or palette; 16-bit channels are cut to 8), base64, of the session's image size.
     #[schema(content_encoding = "base64")]
     image_png: String,
     #[schema(schema_with = openapi::pose_ref)]
@@ -595,7 +583,7 @@ pub async fn frame_truth(State(st): St, p: Result<Path<(u64, u64)>, PathRejectio
             ApiError::not_found("truth", format!("session {id} is not synthetic: only a synthetic world has a true frame"))
         })?;
         let k = s.intrinsics();
-        Ok(crate::engine::encode_png(&rgb, k.width, k.height))
+        Ok(encode_png(k.width, k.height, &rgb))
     })
     .await?;
     Ok(([(header::CONTENT_TYPE, "image/png")], png).into_response())

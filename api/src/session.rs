@@ -5,7 +5,8 @@ use std::sync::Arc;
 
 use memory::{ContextPlan, FrameMemory, Frustum, Intrinsics, MemoryFrame, Policy, PolicySpec, Pose};
 use world::World;
-use world::agent::{Action, PlayerState, WALK_SPEED};
+use motion::{Action, Kinematic, MotionModel};
+use world::agent::PlayerState;
 
 use crate::error::ApiError;
 use crate::store::{FrameMeta, FrameRecord, SessionRecord};
@@ -83,10 +84,11 @@ impl Session {
         let last = self.frames.last().ok_or_else(|| ApiError::internal("session without frames"))?;
         match (&self.world, last.player) {
             (Some(world), Some(player)) => {
-                let next = world::agent::step(world, &player, action);
-                Ok((next.camera(), Some(next)))
+                let physics = world::agent::Physics { world };
+                let next = physics.step(&player, action);
+                Ok((physics.camera(&next), Some(next)))
             }
-            _ => Ok((kinematic(&last.pose, action), None)),
+            _ => Ok((Kinematic.step(&last.pose, action), None)),
         }
     }
 }
@@ -97,51 +99,4 @@ pub fn player_from(p: [f64; 5]) -> PlayerState {
 
 pub fn player_to(p: &PlayerState) -> [f64; 5] {
     [p.feet[0], p.feet[1], p.feet[2], p.yaw_deg, p.pitch_deg]
-}
-
-/// The motion model for worlds the server cannot simulate: turn about the
-/// world's vertical (−y in OpenCV world terms: the camera's "up" is −y), then
-/// move `WALK_SPEED` along the pressed keys in the horizontal plane. No
-/// collisions, no gravity; jump is ignored.
-pub fn kinematic(pose: &Pose, a: &Action) -> Pose {
-    use glam::{DMat3, DVec3};
-    let yaw = DMat3::from_rotation_y(-a.yaw_deg.to_radians());
-    let rotation = yaw * pose.rotation() * DMat3::from_rotation_x(-a.pitch_deg.to_radians());
-    let forward = rotation * DVec3::Z;
-    let flat = DVec3::new(forward.x, 0.0, forward.z).try_normalize().unwrap_or(DVec3::Z);
-    let right = DVec3::new(-flat.z, 0.0, flat.x);
-    let keys = |on: bool| if on { 1.0 } else { 0.0 };
-    let dir = flat * (keys(a.forward) - keys(a.back)) + right * (keys(a.right) - keys(a.left));
-    let step = dir.try_normalize().map_or(DVec3::ZERO, |d| d * WALK_SPEED);
-    // Re-orthonormalised so thousands of steps (or a caller's pose at the edge
-    // of the tolerance) never drift out of what `Pose::new` accepts.
-    let rotation = DMat3::from_quat(glam::DQuat::from_mat3(&rotation).normalize());
-    Pose::new(rotation, pose.position() + step).unwrap_or(*pose)
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    /// On open flat ground the world's physics is pure kinematics, so the
-    /// kinematic model must land on the same camera pose.
-    #[test]
-    fn kinematic_model_matches_the_world_on_flat_ground() {
-        let world = World::flat(64, 10);
-        let mut player = PlayerState { feet: [32.5, 11.0, 32.5], yaw_deg: 30.0, pitch_deg: 10.0 };
-        let mut pose = player.camera();
-        let actions = [
-            Action { forward: true, ..Action::default() },
-            Action { forward: true, yaw_deg: 12.0, ..Action::default() },
-            Action { left: true, pitch_deg: -5.0, ..Action::default() },
-            Action { back: true, right: true, yaw_deg: -40.0, ..Action::default() },
-        ];
-        for a in actions.iter().cycle().take(20) {
-            player = world::agent::step(&world, &player, a);
-            pose = kinematic(&pose, a);
-            let want = player.camera();
-            assert!((pose.position() - want.position()).length() < 1e-9, "{:?} vs {:?}", pose.position(), want.position());
-            assert!(pose.rotation().abs_diff_eq(want.rotation(), 1e-9), "{:?} vs {:?}", pose.rotation(), want.rotation());
-        }
-    }
 }

@@ -67,6 +67,14 @@ pub fn cluster_bootstrap(clusters: &[Vec<f64>], reps: usize, seed: u64) -> Inter
     Interval { mean, lo: at(0.025), hi: at(0.975), clusters: k, values: count }
 }
 
+/// The `q`-quantile (0 to 1) of sorted values, by the nearest rank; NaN when there are none.
+pub fn percentile(sorted: &[f64], q: f64) -> f64 {
+    if sorted.is_empty() {
+        return f64::NAN;
+    }
+    sorted[((sorted.len() - 1) as f64 * q.clamp(0.0, 1.0)).round() as usize]
+}
+
 /// One row over every scored frame of a suite.
 #[derive(Clone, Debug, Serialize)]
 pub struct PooledRow {
@@ -121,6 +129,13 @@ pub fn pooled(rows: &[(&str, &[Vec<FrameScore>])], against: &str, reps: usize) -
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn percentile_takes_the_nearest_rank() {
+        let v = [1.0, 2.0, 3.0, 4.0, 5.0];
+        assert_eq!((percentile(&v, 0.0), percentile(&v, 0.5), percentile(&v, 0.99), percentile(&v, 1.0)), (1.0, 3.0, 5.0, 5.0));
+        assert!(percentile(&[], 0.5).is_nan());
+    }
 
     #[test]
     fn mean_std_matches_hand_values() {

@@ -15,53 +15,9 @@ use crate::terrain::{HEIGHT, World};
 pub const EYE_HEIGHT: f64 = 1.62;
 /// Half the player's width: the collision box is 0.6 × 1.8 × 0.6.
 pub const HALF_WIDTH: f64 = 0.3;
-/// Blocks per step when walking (Minecraft walks 4.317 blocks/s; at 20 Hz
-/// that is 0.216 per tick).
-pub const WALK_SPEED: f64 = 0.216;
+pub use motion::{Action, MotionModel, WALK_SPEED};
 /// The path follower's largest yaw change per step, degrees.
 pub const MAX_TURN_DEG: f64 = 12.0;
-
-/// One step's controls, LoopNav's action space: movement keys, jump, and
-/// camera deltas in degrees (yaw in Minecraft's sense, positive pitch down).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct Action {
-    #[serde(default)]
-    pub forward: bool,
-    #[serde(default)]
-    pub back: bool,
-    #[serde(default)]
-    pub left: bool,
-    #[serde(default)]
-    pub right: bool,
-    #[serde(default)]
-    pub jump: bool,
-    #[serde(default)]
-    pub yaw_deg: f64,
-    #[serde(default)]
-    pub pitch_deg: f64,
-}
-
-impl Action {
-    /// The 7 numbers stored per frame: forward, back, left, right, jump (0/1),
-    /// yaw delta, pitch delta (degrees).
-    pub fn to_vector(&self) -> [f32; 7] {
-        let b = |v: bool| if v { 1.0 } else { 0.0 };
-        [
-            b(self.forward),
-            b(self.back),
-            b(self.left),
-            b(self.right),
-            b(self.jump),
-            self.yaw_deg as f32,
-            self.pitch_deg as f32,
-        ]
-    }
-
-    pub fn turn(yaw_deg: f64, pitch_deg: f64) -> Action {
-        Action { yaw_deg, pitch_deg, ..Action::default() }
-    }
-}
 
 /// Where the player stands and looks. `feet` is the centre of the bottom of
 /// the collision box; yaw and pitch follow Minecraft (degrees, yaw 0 faces
@@ -93,6 +49,24 @@ impl PlayerState {
     /// The cell the feet are in.
     pub fn cell(&self) -> [i32; 3] {
         [self.feet[0].floor() as i32, self.feet[1].round() as i32, self.feet[2].floor() as i32]
+    }
+}
+
+/// The synthetic world's physics as a [`MotionModel`]: [`step`] in `world`.
+#[derive(Clone, Copy)]
+pub struct Physics<'a> {
+    pub world: &'a World,
+}
+
+impl MotionModel for Physics<'_> {
+    type State = PlayerState;
+
+    fn step(&self, state: &PlayerState, action: &Action) -> PlayerState {
+        step(self.world, state, action)
+    }
+
+    fn camera(&self, state: &PlayerState) -> Pose {
+        state.camera()
     }
 }
 
@@ -317,6 +291,31 @@ pub fn wrap_deg(a: f64) -> f64 {
 
 #[cfg(test)]
 mod tests {
+    use motion::Kinematic;
+
+    /// On open flat ground the world's physics is pure kinematics, so the
+    /// kinematic model must land on the same camera pose.
+    #[test]
+    fn kinematic_model_matches_the_world_on_flat_ground() {
+        let world = World::flat(64, 10);
+        let physics = Physics { world: &world };
+        let mut player = PlayerState { feet: [32.5, 11.0, 32.5], yaw_deg: 30.0, pitch_deg: 10.0 };
+        let mut pose = player.camera();
+        let actions = [
+            Action { forward: true, ..Action::default() },
+            Action { forward: true, yaw_deg: 12.0, ..Action::default() },
+            Action { left: true, pitch_deg: -5.0, ..Action::default() },
+            Action { back: true, right: true, yaw_deg: -40.0, ..Action::default() },
+        ];
+        for a in actions.iter().cycle().take(20) {
+            player = physics.step(&player, a);
+            pose = Kinematic.step(&pose, a);
+            let want = physics.camera(&player);
+            assert!((pose.position() - want.position()).length() < 1e-9, "{:?} vs {:?}", pose.position(), want.position());
+            assert!(pose.rotation().abs_diff_eq(want.rotation(), 1e-9), "{:?} vs {:?}", pose.rotation(), want.rotation());
+        }
+    }
+
     use super::*;
 
     fn walk(world: &World, from: PlayerState, action: Action, steps: usize) -> PlayerState {

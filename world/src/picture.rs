@@ -10,13 +10,38 @@ use crate::trajectory::{Phase, Trajectory};
 
 /// Writes 8-bit RGB pixels (row-major, top-left first) as a PNG.
 pub fn write_png(path: &Path, width: u32, height: u32, rgb: &[u8]) -> io::Result<()> {
-    let file = std::io::BufWriter::new(std::fs::File::create(path)?);
-    let mut encoder = png::Encoder::new(file, width, height);
+    std::fs::write(path, encode_png(width, height, rgb))
+}
+
+/// 8-bit RGB pixels (row-major, top-left first) as PNG bytes.
+pub fn encode_png(width: u32, height: u32, rgb: &[u8]) -> Vec<u8> {
+    assert_eq!(rgb.len(), (width * height * 3) as usize, "encode_png: not an RGB image of the given size");
+    let mut out = Vec::new();
+    let mut encoder = png::Encoder::new(&mut out, width, height);
     encoder.set_color(png::ColorType::Rgb);
     encoder.set_depth(png::BitDepth::Eight);
-    let mut writer = encoder.write_header().map_err(io::Error::other)?;
-    writer.write_image_data(rgb).map_err(io::Error::other)?;
-    writer.finish().map_err(io::Error::other)
+    encoder.write_header().and_then(|mut w| w.write_image_data(rgb)).expect("encoding a PNG into memory");
+    out
+}
+
+/// A PNG's pixels as 8-bit RGB, with its width and height: RGB, RGBA
+/// (alpha dropped), grey (with or without alpha) and palette images, 16-bit
+/// channels cut to their high byte. The error says what is wrong with it.
+pub fn decode_rgb(bytes: &[u8]) -> Result<(Vec<u8>, u32, u32), String> {
+    let mut decoder = png::Decoder::new(std::io::Cursor::new(bytes));
+    decoder.set_transformations(png::Transformations::EXPAND | png::Transformations::STRIP_16);
+    let mut reader = decoder.read_info().map_err(|e| format!("not a PNG: {e}"))?;
+    let mut buf = vec![0; reader.output_buffer_size()];
+    let info = reader.next_frame(&mut buf).map_err(|e| format!("broken PNG: {e}"))?;
+    let px = (info.width * info.height) as usize;
+    let rgb = match info.color_type {
+        png::ColorType::Rgb => buf[..px * 3].to_vec(),
+        png::ColorType::Rgba => buf[..px * 4].chunks_exact(4).flat_map(|p| [p[0], p[1], p[2]]).collect(),
+        png::ColorType::Grayscale => buf[..px].iter().flat_map(|&g| [g, g, g]).collect(),
+        png::ColorType::GrayscaleAlpha => buf[..px * 2].chunks_exact(2).flat_map(|p| [p[0], p[0], p[0]]).collect(),
+        png::ColorType::Indexed => return Err("a palette the decoder did not expand".into()),
+    };
+    Ok((rgb, info.width, info.height))
 }
 
 /// Depth as colour: near is bright yellow, far is deep violet, sky black.
