@@ -11,6 +11,7 @@ if [ ! -x .venv/bin/python ]; then
 fi
 echo "==> installing Python test requirements"
 .venv/bin/python -m pip install --disable-pip-version-check -q -r tests/requirements.txt
+.venv/bin/python -m pip install --disable-pip-version-check -q -e 'clients/python[gym]'
 
 echo "==> cargo test (release: the overlap property tests sample millions of points)"
 cargo test --release --workspace

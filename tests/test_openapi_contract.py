@@ -55,7 +55,7 @@ def server(tmp_path_factory):
 
 def schemathesis(schema, url, *extra):
     args = [str(SCHEMATHESIS), "--config-file", str(ROOT / "tests" / "schemathesis.toml"), "--no-color", "run", schema, "--url", url,
-            "--checks", "all", "--max-examples", "25", "--workers", "1", "--seed", "20261123", *extra]
+            "--checks", "all", "--max-examples", "25", "--workers", "1", "--seed", "20261123", "--request-timeout", "300", *extra]
     return subprocess.run(args, capture_output=True, text=True, timeout=900)
 
 

@@ -5,6 +5,9 @@ use axum::Json;
 use axum::http::StatusCode;
 use axum::response::{IntoResponse, Response};
 
+/// Seconds a refused client should wait before trying again (a step takes tens of milliseconds).
+pub const RETRY_AFTER_S: &str = "1";
+
 #[derive(Debug)]
 pub struct ApiError {
     pub status: StatusCode,
@@ -33,6 +36,10 @@ impl ApiError {
 impl IntoResponse for ApiError {
     fn into_response(self) -> Response {
         let body = crate::routes::ErrorBody { error: crate::routes::ErrorDetail { field: self.field, message: self.message } };
+        // Refusals for load (a full session queue, too many model calls) are worth retrying; say when.
+        if matches!(self.status, StatusCode::TOO_MANY_REQUESTS | StatusCode::SERVICE_UNAVAILABLE) {
+            return (self.status, [(axum::http::header::RETRY_AFTER, RETRY_AFTER_S)], Json(body)).into_response();
+        }
         (self.status, Json(body)).into_response()
     }
 }

@@ -336,6 +336,12 @@ pub struct StepRequest {
     #[serde(default)]
     #[schema(maximum = 9223372036854775807_u64)]
     seed: Option<u64>,
+    /// The index the new frame must get: the step is refused with 409 when
+    /// the session has moved on, so a client that lost an answer can send
+    /// the step again without stepping twice.
+    #[serde(default)]
+    #[schema(maximum = 9223372036854775807_u64)]
+    expected_index: Option<u64>,
 }
 
 #[utoipa::path(post, path = "/v1/sessions/{id}/step", summary = "Select memories, generate the next frame, store it (durable before the answer)",
@@ -345,7 +351,7 @@ pub struct StepRequest {
         (status = 200, body = StepAnswer),
         (status = 400, description = "a field is missing or wrong (the body names it)", body = ErrorBody),
         (status = 404, description = "no such session", body = ErrorBody),
-        (status = 409, description = "the server runs without a model (memory only)", body = ErrorBody),
+        (status = 409, description = "the server runs without a model (memory only), or the session's next index is not `expected_index`", body = ErrorBody),
         (status = 413, description = "the body is larger than the server's limit", body = ErrorBody),
         (status = 415, description = "the body is not application/json", body = ErrorBody),
         (status = 429, description = "too many requests queued on the session", body = ErrorBody),
@@ -368,6 +374,12 @@ pub async fn step(State(st): St, id: Result<Path<u64>, PathRejection>, headers: 
     let sampler = Sampler::new(&m.manifest().diffusion, steps, st.config.method, 0.0)?;
     let slot = slot(&st, id)?;
     let mut s = lock(&st, &slot).await?;
+    if let Some(expected) = req.expected_index {
+        let next = s.frames.len() as u64;
+        if expected != next {
+            return Err(ApiError::new(StatusCode::CONFLICT, "expected_index", format!("the session's next frame is {next}, not {expected}")));
+        }
+    }
     let _permit = permit(&st)?;
     let st2 = st.clone();
     let out = blocking(move || {

@@ -1,0 +1,148 @@
+"""The Python client and the Gymnasium environment (clients/python) against
+a real `worldpack serve` on loopback: no mock anywhere."""
+
+import os
+import socket
+import subprocess
+import threading
+import time
+import urllib.request
+from pathlib import Path
+
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+
+from worldpack_client import Client, WorldPackError, c2w, opencv, opengl, pose5
+from worldpack_client.env import WorldPackEnv
+
+ROOT = Path(__file__).resolve().parent.parent
+BIN = os.environ.get("WORLDPACK_BIN", str(ROOT / "target" / "release" / "worldpack"))
+
+
+def start(tmp, *flags):
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    proc = subprocess.Popen([BIN, "serve", "--store", str(tmp / "store.redb"), "--addr", f"127.0.0.1:{port}", *flags],
+                            cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    url = f"http://127.0.0.1:{port}"
+    for _ in range(300):
+        try:
+            urllib.request.urlopen(url + "/v1/health", timeout=1)
+            return proc, url
+        except OSError:
+            if proc.poll() is not None:
+                pytest.fail(f"the server exited: {proc.stderr.read()}")
+            time.sleep(0.1)
+    pytest.fail("the server did not come up")
+
+
+@pytest.fixture(scope="module")
+def server(tmp_path_factory):
+    proc, url = start(tmp_path_factory.mktemp("client"), "--steps", "2")
+    yield url
+    proc.terminate()
+    proc.wait(timeout=30)
+
+
+def test_gymnasium_check_env_passes(server):
+    env = WorldPackEnv(Client(server), max_steps=3)
+    check_env(env, skip_render_check=False)
+    env.close()
+
+
+def test_every_sampled_action_is_accepted_and_episodes_truncate(server):
+    env = WorldPackEnv(Client(server), max_steps=6)
+    obs, info = env.reset(seed=3)
+    assert obs["frame"].shape == (64, 64, 3) and obs["frame"].dtype == np.uint8
+    env.action_space.seed(11)
+    truncated, steps = False, 0
+    while not truncated:
+        obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
+        steps += 1
+        assert obs["frame"].shape == (64, 64, 3) and not terminated and reward == 0.0
+        assert len(info["plan"]["slots"]) == 22, "the server's default policy is WorldPack: 22 slots"
+        assert 0.0 < info["psnr_db"] <= 100.0 and -1.0 <= info["ssim"] <= 1.0, "a synthetic session scores each frame"
+        np.testing.assert_array_equal(env.render(), obs["frame"])
+    assert steps == 6
+    session = env.session
+    env.close()
+    with pytest.raises(WorldPackError) as e:
+        env.client.session(session)
+    assert e.value.status == 404 and e.value.field == "session"
+
+
+def test_observed_images_and_depth_read_back_equal_in_every_pose_form(server):
+    c = Client(server)
+    rng = np.random.default_rng(0)
+    image = rng.integers(0, 256, (48, 64, 3), dtype=np.uint8)
+    depth = rng.integers(0, 40000, (48, 64), dtype=np.uint16)
+    identity = np.eye(4)
+    session = c.create_session(frames=[(image, identity)], intrinsics={"hfov_deg": 70, "width": 64, "height": 48})
+    forms = {
+        "c2w": c2w(np.eye(3), [1.0, 2.0, 3.0]),
+        "opencv": opencv([0.0, 0.3, 0.0], [0.5, 0.0, -2.0]),
+        "opengl": opengl([[1, 0, 0, 4.0], [0, 1, 0, 5.0], [0, 0, 1, 6.0], [0, 0, 0, 1]]),
+        "pose5": pose5(10.0, 64.0, -3.0, 15.0, 90.0),
+        "array": np.array([[0, 0, 1, 7.0], [0, 1, 0, 0], [-1, 0, 0, 1.0], [0, 0, 0, 1]]),
+    }
+    for name, pose in forms.items():
+        r = c.observe(session, image, pose, depth_mm=depth, action={"forward": True})
+        np.testing.assert_array_equal(c.frame_image(session, r["index"]), image, err_msg=name)
+        np.testing.assert_array_equal(c.frame_depth(session, r["index"]), depth, err_msg=name)
+    # The array form is OpenCV camera-to-world: it reads back as given.
+    back = c.frame(session, r["index"])["pose"]
+    np.testing.assert_allclose(np.asarray(back["position"]), [7.0, 0.0, 1.0], atol=1e-9)
+    plan = c.select(session, np.eye(4))["plan"]
+    assert any(s["frame"] is not None for s in plan["slots"])
+
+
+def test_bad_requests_raise_with_the_servers_field(server):
+    c = Client(server)
+    session = c.create_session(synthetic_seed=5)
+    with pytest.raises(WorldPackError) as e:
+        c.step(session, {"forward": True, "yaw_deg": 400.0})
+    assert (e.value.status, e.value.field) == (400, "action.yaw_deg")
+    with pytest.raises(WorldPackError) as e:
+        c.observe(session, np.zeros((64, 64, 3), np.uint8), c2w(2 * np.eye(3), [0, 0, 0]))
+    assert e.value.status == 400 and e.value.field.startswith("pose"), e.value
+    # A step sent again after its answer was lost is refused, not taken twice.
+    first = c.step(session, {"forward": True}, expected_index=1)
+    with pytest.raises(WorldPackError) as e:
+        c.step(session, {"forward": True}, expected_index=1)
+    assert (e.value.status, e.value.field) == (409, "expected_index")
+    assert c.session(session)["frames"] == first.index + 1 == 2
+
+
+def test_refusals_under_load_are_retried_to_success(tmp_path):
+    proc, url = start(tmp_path, "--steps", "2", "--max-queue", "1")
+    try:
+        c = Client(url)
+        session = c.create_session(synthetic_seed=7)
+        errors = []
+
+        def slow_step():
+            try:
+                Client(url).step(session, {"forward": True}, steps=400, expected_index=1)
+            except Exception as e:  # noqa: BLE001 - reported below
+                errors.append(e)
+
+        stepper = threading.Thread(target=slow_step)
+        stepper.start()
+        time.sleep(0.3)  # the step holds the session; one more request may queue, the rest are refused
+        clients = [Client(url) for _ in range(4)]
+        answers = [None] * 4
+        threads = [threading.Thread(target=lambda i=i: answers.__setitem__(i, clients[i].select(session, np.eye(4)))) for i in range(4)]
+        for t in threads:
+            t.start()
+        for t in threads + [stepper]:
+            t.join(timeout=300)
+        assert not errors, errors
+        assert all(a is not None and "plan" in a for a in answers), answers
+        refusals = [r for cl in clients for r in cl.refusals]
+        assert refusals, "four selects behind a slow step and a full queue: some were refused"
+        assert all(r == (429, "1") for r in refusals), refusals
+    finally:
+        proc.terminate()
+        proc.wait(timeout=30)
