@@ -7,6 +7,7 @@ use std::path::PathBuf;
 
 use anyhow::Result;
 use eval::stats::Interval;
+use eval::memory_probe::Settings as ProbeRun;
 use eval::study::{Progress, Settings, Summary, study};
 use indicatif::ProgressBar;
 
@@ -63,7 +64,7 @@ pub struct Options {
 
 impl Options {
     fn settings(&self) -> Settings {
-        Settings {
+        let probe = ProbeRun {
             suite: self.suite.clone(),
             models: self.models.clone(),
             extra: self.extra.clone(),
@@ -74,12 +75,10 @@ impl Options {
             batch: self.batch,
             latency_calls: self.latency_calls,
             limit: self.limit,
-            vo: self.vo.clone(),
-            quick: self.quick,
-            rollout_frames: self.rollout_frames,
             runtime: self.runtime.options(),
-            out: self.out.clone(),
-        }
+            out: None,
+        };
+        Settings { probe, vo: self.vo.clone(), quick: self.quick, rollout_frames: self.rollout_frames, out: self.out.clone() }
     }
 }
 

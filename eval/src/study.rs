@@ -27,7 +27,7 @@ use model::{Method, Model, RuntimeOptions, Sampler};
 use serde::{Deserialize, Serialize};
 
 use crate::digest::{FNV_START, fnv1a, model_key};
-use crate::memory_probe::{VARIANTS, variant_policy};
+use crate::memory_probe::{Settings as ProbeRun, VARIANTS, variant_policy};
 use crate::program::{ProgramError, io, load_model, setting, write_atomically};
 
 type Result<T, E = ProgramError> = std::result::Result<T, E>;
@@ -35,29 +35,15 @@ type Result<T, E = ProgramError> = std::result::Result<T, E>;
 /// What one study does; `worldpack study`'s flags, one field each.
 #[derive(Clone, Debug)]
 pub struct Settings {
-    pub suite: PathBuf,
-    /// The variant model folders (all five: baseline, nearest_frame_packing, memory_retrieval, worldpack, worldpack_keep_last).
-    pub models: PathBuf,
-    /// More models (name, folder), each with the policy it was trained with.
-    pub extra: Vec<(String, PathBuf)>,
-    pub steps: usize,
-    /// Also run WorldPack and WorldPack keep-last at these step counts.
-    pub sweep_steps: Vec<usize>,
-    pub method: Method,
-    /// Score every n-th return-leg frame.
-    pub stride: usize,
-    /// Frames predicted per denoiser call.
-    pub batch: usize,
-    /// Batch-1 predictions timed per row for the latency axis.
-    pub latency_calls: usize,
-    pub limit: Option<usize>,
+    /// The probe every condition runs: suite, models (all five variants), extra models, sampler,
+    /// stride, batch, latency calls, limit, runtime; its `out` is unused.
+    pub probe: ProbeRun,
     /// A condition whose poses come from this file in each trajectory folder.
     pub vo: Option<String>,
     /// Only the noise-free condition and the two mildest noise levels.
     pub quick: bool,
     /// Frames generated per return leg in the rollouts under pose noise (0: none).
     pub rollout_frames: usize,
-    pub runtime: RuntimeOptions,
     /// Folder for the saved conditions and study.json.
     pub out: PathBuf,
 }
@@ -195,34 +181,34 @@ fn transform(traj: &Trajectory, change: &Change, suite: &Path, index: usize) -> 
 }
 
 pub fn study(o: &Settings, progress: &dyn Fn(Progress)) -> Result<Summary> {
-    if o.stride == 0 || o.batch == 0 {
+    if o.probe.stride == 0 || o.probe.batch == 0 {
         return Err(setting("--stride", "--stride and --batch must be at least 1"));
     }
-    let trajectories = crate::suite::load(&o.suite, o.limit)?;
+    let trajectories = crate::suite::load(&o.probe.suite, o.probe.limit)?;
     if let Some(file) = &o.vo {
         // Fail before hours of work, naming the first trajectory without the file.
         for t in &trajectories {
-            t.believed_poses(&o.suite, file).map_err(|e| setting("--vo", format!("{file}: {e}")))?;
+            t.believed_poses(&o.probe.suite, file).map_err(|e| setting("--vo", format!("{file}: {e}")))?;
         }
     }
     let mut models: Vec<(String, Model)> = Vec::new();
     for name in VARIANTS {
-        let dir = o.models.join(name);
+        let dir = o.probe.models.join(name);
         if !dir.join("manifest.json").exists() {
-            return Err(setting("--models", format!("{} has no {name}/ model folder; the study runs every trained variant", o.models.display())));
+            return Err(setting("--models", format!("{} has no {name}/ model folder; the study runs every trained variant", o.probe.models.display())));
         }
-        models.push((name.to_string(), load(&dir, o.runtime)?));
+        models.push((name.to_string(), load(&dir, o.probe.runtime)?));
     }
-    for (name, dir) in &o.extra {
-        models.push((name.clone(), load(dir, o.runtime)?));
+    for (name, dir) in &o.probe.extra {
+        models.push((name.clone(), load(dir, o.probe.runtime)?));
     }
-    let one_thread = RuntimeOptions { threads: 1, ..o.runtime };
+    let one_thread = RuntimeOptions { threads: 1, ..o.probe.runtime };
     let timing: Vec<(String, Model)> = models.iter().map(|(n, m)| Ok((n.clone(), load(m.dir(), one_thread)?))).collect::<Result<_>>()?;
     let model_index = |name: &str| models.iter().position(|m| m.0 == name).expect("loaded above");
     let variant = |name: &str, group| RowSpec {
         name: name.into(),
         group,
-        what: What::Model { model: model_index(name), policy: variant_policy(name).expect("a variant"), steps: o.steps },
+        what: What::Model { model: model_index(name), policy: variant_policy(name).expect("a variant"), steps: o.probe.steps },
     };
     let wp = model_index("worldpack");
     let wp_policy = Policy::preset(PolicyKind::WorldPack);
@@ -234,31 +220,31 @@ pub fn study(o: &Settings, progress: &dyn Fn(Progress)) -> Result<Summary> {
     variants.push(RowSpec {
         name: "worldmem_greedy".into(),
         group: Group::Policy,
-        what: What::Model { model: model_index("memory_retrieval"), policy: Policy::preset(PolicyKind::WorldMemGreedy), steps: o.steps },
+        what: What::Model { model: model_index("memory_retrieval"), policy: Policy::preset(PolicyKind::WorldMemGreedy), steps: o.probe.steps },
     });
     // The noise-free condition carries every speed/accuracy point.
     let mut clean = variants.clone();
     // Step counts for the paper's WorldPack and for the variant that keeps the newest frame.
     for name in ["worldpack", "worldpack_keep_last"] {
-        for &s in o.sweep_steps.iter().filter(|&&s| s != o.steps) {
+        for &s in o.probe.sweep_steps.iter().filter(|&&s| s != o.probe.steps) {
             let what = What::Model { model: model_index(name), policy: variant_policy(name).expect("a variant"), steps: s };
             clean.push(RowSpec { name: format!("{name}, {s} steps"), group: Group::Steps, what });
         }
     }
     for samples in [1000, 10_000] {
         let policy = Policy { estimator: Estimator::MonteCarlo(MonteCarlo { samples, seed: 0 }), ..wp_policy.clone() };
-        clean.push(RowSpec { name: format!("worldpack, Monte Carlo {samples}"), group: Group::Estimator, what: What::Model { model: wp, policy, steps: o.steps } });
+        clean.push(RowSpec { name: format!("worldpack, Monte Carlo {samples}"), group: Group::Estimator, what: What::Model { model: wp, policy, steps: o.probe.steps } });
     }
-    for (name, _) in &o.extra {
+    for (name, _) in &o.probe.extra {
         let model = model_index(name);
-        clean.push(RowSpec { name: name.clone(), group: Group::Size, what: What::Model { model, policy: models[model].1.trained_policy(), steps: o.steps } });
+        clean.push(RowSpec { name: name.clone(), group: Group::Size, what: What::Model { model, policy: models[model].1.trained_policy(), steps: o.probe.steps } });
     }
     clean.extend(references.clone());
 
     let mut conditions = vec![Condition { name: "clean".into(), change: Change::Clean, rows: clean, timed: true }];
     if !o.quick {
         for far in [15.0, 60.0] {
-            let row = RowSpec { name: format!("worldpack, far {far}"), group: Group::Far, what: What::Model { model: wp, policy: wp_policy.clone(), steps: o.steps } };
+            let row = RowSpec { name: format!("worldpack, far {far}"), group: Group::Far, what: What::Model { model: wp, policy: wp_policy.clone(), steps: o.probe.steps } };
             conditions.push(Condition { name: format!("far {far}"), change: Change::Far { far }, rows: vec![row], timed: true });
         }
     }
@@ -271,7 +257,7 @@ pub fn study(o: &Settings, progress: &dyn Fn(Progress)) -> Result<Summary> {
     let model_keys: Vec<String> = models.iter().map(|(_, m)| model_key(m.dir()).map_err(io(m.dir()))).collect::<Result<_>>()?;
     let dir = o.out.join("conditions");
     std::fs::create_dir_all(&dir).map_err(io(&o.out))?;
-    let targets: usize = trajectories.iter().map(|t| t.return_frames(o.stride).len()).sum();
+    let targets: usize = trajectories.iter().map(|t| t.return_frames(o.probe.stride).len()).sum();
     progress(Progress::Started { trajectories: trajectories.len(), targets, conditions: conditions.len() });
 
     let mut latents: HashMap<(usize, usize), Rc<Vec<Vec<f32>>>> = HashMap::new();
@@ -280,18 +266,18 @@ pub fn study(o: &Settings, progress: &dyn Fn(Progress)) -> Result<Summary> {
         let key = Key {
             condition: c.name.clone(),
             change: c.change.clone(),
-            suite: o.suite.display().to_string(),
+            suite: o.probe.suite.display().to_string(),
             trajectories: trajectories.iter().map(|t| t.entry.dir.clone()).collect(),
             rows: c.rows.iter().map(|r| r.name.clone()).collect(),
             models: c.rows.iter().map(|r| if let What::Model { model, .. } = r.what { Some(model_keys[model].clone()) } else { None }).collect(),
-            stride: o.stride,
+            stride: o.probe.stride,
             steps: c.rows.iter().map(|r| if let What::Model { steps, .. } = r.what { Some(steps) } else { None }).collect(),
-            method: format!("{:?}", o.method).to_lowercase(),
-            batch: o.batch,
-            latency_calls: c.timed.then_some(o.latency_calls),
+            method: format!("{:?}", o.probe.method).to_lowercase(),
+            batch: o.probe.batch,
+            latency_calls: c.timed.then_some(o.probe.latency_calls),
             latency_threads: c.timed.then_some(1),
             poses_digest: match &c.change {
-                Change::Poses { file } => Some(poses_digest(&trajectories, &o.suite, file)?),
+                Change::Poses { file } => Some(poses_digest(&trajectories, &o.probe.suite, file)?),
                 _ => None,
             },
         };
@@ -308,18 +294,18 @@ pub fn study(o: &Settings, progress: &dyn Fn(Progress)) -> Result<Summary> {
 
     let rollouts = if o.rollout_frames > 0 { noisy_rollouts(o, &results, &trajectories, &models, &mut latents, progress)? } else { Vec::new() };
 
-    let strata: Vec<Vec<TargetFeatures>> = trajectories.iter().map(|t| features(t, &t.return_frames(o.stride))).collect::<Result<_, _>>()?;
+    let strata: Vec<Vec<TargetFeatures>> = trajectories.iter().map(|t| features(t, &t.return_frames(o.probe.stride))).collect::<Result<_, _>>()?;
     let parameters: Vec<Option<u64>> = models.iter().map(|(_, m)| m.manifest().denoiser.parameters).collect();
     let summary = summarise(&results, &strata, &parameters, summarise_rollouts(&rollouts));
     let path = o.out.join("study.json");
     let json = serde_json::json!({
         "format": "worldpack-study/1",
-        "suite": o.suite,
-        "models": o.models,
+        "suite": o.probe.suite,
+        "models": o.probe.models,
         "trajectories": trajectories.len(),
         "targets": targets,
-        "stride": o.stride,
-        "sampler": { "method": format!("{:?}", o.method).to_lowercase(), "steps": o.steps },
+        "stride": o.probe.stride,
+        "sampler": { "method": format!("{:?}", o.probe.method).to_lowercase(), "steps": o.probe.steps },
         "bootstrap": { "reps": BOOTSTRAP_REPS, "resampled": "trajectories", "level": 0.95 },
         "tradeoff": summary.tradeoff,
         "noise": summary.noise,
@@ -397,24 +383,24 @@ fn run_condition(
     progress: &dyn Fn(Progress),
 ) -> Result<Saved> {
     let start = Instant::now();
-    let rows = build_rows(c, models, o.method)?;
+    let rows = build_rows(c, models, o.probe.method)?;
     let model_of = |m: &Model| models.iter().position(|(_, x)| std::ptr::eq(x, m)).expect("a loaded model");
     let mut latents_of = |ti: usize, traj: &Trajectory, m: &Model| cached_latents(latents, ti, traj, models, model_of(m));
 
     let mut latency = vec![None; rows.len()];
     if c.timed {
-        let first = transform(&trajectories[0], &c.change, &o.suite, 0)?;
-        for (i, (row, spec)) in build_rows(c, timing, o.method)?.iter().zip(&c.rows).enumerate() {
+        let first = transform(&trajectories[0], &c.change, &o.probe.suite, 0)?;
+        for (i, (row, spec)) in build_rows(c, timing, o.probe.method)?.iter().zip(&c.rows).enumerate() {
             let l = match &spec.what {
                 What::Model { model, .. } => latents_of(0, &first, &models[*model].1)?,
                 _ => Rc::default(),
             };
-            latency[i] = Some(latency_ms(&first, row, &l, o.latency_calls)?);
+            latency[i] = Some(latency_ms(&first, row, &l, o.probe.latency_calls)?);
         }
     }
 
-    let settings = ProbeSettings { stride: o.stride, batch: o.batch, seed: 20261121 };
-    let targets: usize = trajectories.iter().map(|t| t.return_frames(o.stride).len()).sum();
+    let settings = ProbeSettings { stride: o.probe.stride, batch: o.probe.batch, seed: 20261121 };
+    let targets: usize = trajectories.iter().map(|t| t.return_frames(o.probe.stride).len()).sum();
     progress(Progress::Begin { what: &c.name, total: targets * rows.len() });
     let policies = selection_policies();
     let mut scores = Vec::new();
@@ -422,11 +408,11 @@ fn run_condition(
     let (mut err_d, mut err_r, mut frames) = (0.0, 0.0, 0usize);
     for (ti, traj) in trajectories.iter().enumerate() {
         progress(Progress::Trajectory(&traj.entry.dir));
-        let seen = transform(traj, &c.change, &o.suite, ti)?;
+        let seen = transform(traj, &c.change, &o.probe.suite, ti)?;
         scores.push(probe_trajectory(&seen, &rows, &settings, &mut |m| latents_of(ti, traj, m), &|n| progress(Progress::Predictions(n)))?);
         if matches!(c.change, Change::Noise { .. } | Change::Poses { .. }) {
             let (truth, believed) = (traj.frusta()?, seen.frusta()?);
-            let at = traj.return_frames(o.stride);
+            let at = traj.return_frames(o.probe.stride);
             for ((_, policy), (_, out)) in policies.iter().zip(agreement.iter_mut()) {
                 out.push(selection_agreement(policy, &truth, &believed, &at));
             }
@@ -490,9 +476,9 @@ fn noisy_rollouts(
             continue;
         }
         let start = Instant::now();
-        let seen: Vec<Trajectory> = trajectories.iter().enumerate().map(|(i, t)| transform(t, &c.change, &o.suite, i)).collect::<Result<_>>()?;
+        let seen: Vec<Trajectory> = trajectories.iter().enumerate().map(|(i, t)| transform(t, &c.change, &o.probe.suite, i)).collect::<Result<_>>()?;
         let sub = Condition { name: c.name.clone(), change: c.change.clone(), rows: specs.iter().map(|r| (*r).clone()).collect(), timed: false };
-        let rows = build_rows(&sub, models, o.method)?;
+        let rows = build_rows(&sub, models, o.probe.method)?;
         let frames: usize = seen.iter().map(|t| crate::rollout::rollout_frames(t, Some(o.rollout_frames)).len()).sum();
         progress(Progress::Begin { what: &format!("rollouts: {}", c.name), total: frames * rows.len() });
         let scorer = crate::rollout::Scorer { lpips: None, dreamsim: None, keep_frames: false };
@@ -504,7 +490,7 @@ fn noisy_rollouts(
                     .collect::<Result<_, ProbeError>>()?,
                 _ => vec![Vec::new(); seen.len()],
             };
-            let r = crate::rollout::rollout(&seen, row, &observed, Some(o.rollout_frames), o.batch, 20261121, &scorer, &|n| progress(Progress::Predictions(n)))?;
+            let r = crate::rollout::rollout(&seen, row, &observed, Some(o.rollout_frames), o.probe.batch, 20261121, &scorer, &|n| progress(Progress::Predictions(n)))?;
             scores.push(r.scores);
         }
         progress(Progress::End);
