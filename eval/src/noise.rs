@@ -28,8 +28,7 @@ pub enum PoseNoise {
 /// A standard normal draw (Box–Muller).
 fn gaussian(rng: &mut SplitMix64) -> f64 {
     let u = 1.0 - rng.next_f64(); // (0, 1]: the log is finite
-    let v = rng.next_f64();
-    (-2.0 * u.ln()).sqrt() * (std::f64::consts::TAU * v).cos()
+    SplitMix64::box_muller(u, rng.next_f64()).0
 }
 
 fn random_rotation(rng: &mut SplitMix64, sigma_rad: f64) -> DMat3 {

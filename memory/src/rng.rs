@@ -19,6 +19,14 @@ impl SplitMix64 {
         z ^ (z >> 31)
     }
 
+    /// Two independent standard normal draws from two uniforms (Box–Muller);
+    /// `u1` must be in (0, 1].
+    pub fn box_muller(u1: f64, u2: f64) -> (f64, f64) {
+        let r = (-2.0 * u1.ln()).sqrt();
+        let a = std::f64::consts::TAU * u2;
+        (r * a.cos(), r * a.sin())
+    }
+
     /// Uniform in `[0, 1)` with 53 random bits.
     pub fn next_f64(&mut self) -> f64 {
         (self.next_u64() >> 11) as f64 * (1.0 / (1u64 << 53) as f64)

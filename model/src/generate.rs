@@ -15,11 +15,9 @@ pub fn gaussian(seed: u64, n: usize) -> Vec<f32> {
     let mut out = Vec::with_capacity(n + 1);
     while out.len() < n {
         let u1 = rng.next_f64().max(f64::MIN_POSITIVE);
-        let u2 = rng.next_f64();
-        let r = (-2.0 * u1.ln()).sqrt();
-        let a = std::f64::consts::TAU * u2;
-        out.push((r * a.cos()) as f32);
-        out.push((r * a.sin()) as f32);
+        let (a, b) = SplitMix64::box_muller(u1, rng.next_f64());
+        out.push(a as f32);
+        out.push(b as f32);
     }
     out.truncate(n);
     out
