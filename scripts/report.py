@@ -101,22 +101,19 @@ def main():
              "is generated frame by frame from the true poses and actions, each generated frame joining the memory. "
              "The references copy or depth-warp the observed frame of largest overlap with the target view.", ""]
     wall = {r["name"]: r["wall_s"] for r in res["rows"]}
+    per_task = {(t["task"], t["row"]): t for t in res.get("tasks", [])}
     for task in tasks:
         lines += [f"## {task.upper()}", "", "PSNR (dB) / SSIM, mean ± std over trajectories of each trajectory's mean.", "",
                   "| method | " + " | ".join(f"range {r}" for r in ranges) + " | all ranges |",
                   "|---|" + "---|" * (len(ranges) + 1)]
         for row in rows:
-            vals, allp, alls = [], [], []
+            vals = []
             for r in ranges:
                 c = cell.get((task, r, row))
-                if not c:
-                    vals.append("—")
-                    continue
-                vals.append(f"{c['psnr'][0]:.2f} ± {c['psnr'][1]:.2f} / {c['ssim'][0]:.3f}")
-                allp.append((c["psnr"][0], c["trajectories"]))
-                alls.append((c["ssim"][0], c["trajectories"]))
-            wmean = lambda xs: sum(v * n for v, n in xs) / max(sum(n for _, n in xs), 1)
-            lines.append(f"| {LABEL.get(row, row)} | " + " | ".join(vals) + f" | {wmean(allp):.2f} / {wmean(alls):.3f} |")
+                vals.append(f"{c['psnr'][0]:.2f} ± {c['psnr'][1]:.2f} / {c['ssim'][0]:.3f}" if c else "—")
+            t = per_task.get((task, row))
+            vals.append(f"{t['psnr']:.2f} / {t['ssim']:.3f}" if t else "—")
+            lines.append(f"| {LABEL.get(row, row)} | " + " | ".join(vals) + " |")
         fvd = {(c["task"], c["range"], row): c for row, cs in res.get("fvd", {}).items() for c in cs}
         if any("lpips" in cell.get((task, r, row), {}) or "dreamsim" in cell.get((task, r, row), {}) or (task, r, row) in fvd
                for r in ranges for row in rows):

@@ -31,8 +31,20 @@ pub struct Curve {
     pub ssim: Vec<f64>,
 }
 
+/// One row over every trajectory of a task (all its ranges).
+#[derive(Serialize)]
+pub struct TaskRow {
+    pub task: String,
+    pub row: String,
+    pub trajectories: usize,
+    /// Mean over the task's trajectories of each trajectory's mean.
+    pub psnr: f64,
+    pub ssim: f64,
+}
+
 pub struct Summary {
     pub cells: Vec<CellRow>,
+    pub tasks: Vec<TaskRow>,
     pub curves: Vec<Curve>,
 }
 
@@ -69,8 +81,13 @@ pub fn summarise(trajs: &[(String, i32)], results: &[(&str, &[Vec<FrameScore>])]
     let mut tasks: Vec<String> = keys.iter().map(|k| k.0.clone()).collect();
     tasks.dedup();
     let mut curves = Vec::new();
+    let mut task_rows = Vec::new();
     for task in &tasks {
         let idx: Vec<usize> = (0..trajs.len()).filter(|&i| &trajs[i].0 == task).collect();
+        for &(name, r) in results {
+            let mean_of = |m: fn(&FrameScore) -> f64| mean_std(&idx.iter().map(|&i| mean_std(&r[i].iter().map(m).collect::<Vec<_>>()).0).filter(|v| v.is_finite()).collect::<Vec<_>>()).0;
+            task_rows.push(TaskRow { task: task.clone(), row: name.to_string(), trajectories: idx.len(), psnr: mean_of(|f| f.psnr), ssim: mean_of(|f| f.ssim) });
+        }
         for &(name, r) in results {
             let longest = idx.iter().map(|&i| r[i].len()).max().unwrap_or(0);
             let at = |j: usize, m: fn(&FrameScore) -> f64| mean_std(&idx.iter().filter_map(|&i| r[i].get(j).map(m)).collect::<Vec<_>>()).0;
@@ -82,7 +99,7 @@ pub fn summarise(trajs: &[(String, i32)], results: &[(&str, &[Vec<FrameScore>])]
             });
         }
     }
-    Summary { cells, curves }
+    Summary { cells, tasks: task_rows, curves }
 }
 
 #[cfg(test)]
@@ -98,6 +115,8 @@ mod tests {
         assert_eq!(cells_of(&labels), vec![("aba".to_string(), 5), ("abca".to_string(), 15)]);
         let aba = &s.cells[0];
         assert_eq!((aba.trajectories, aba.psnr.0), (2, 22.5), "trajectory means 15 and 30");
+        assert_eq!((s.tasks[0].task.as_str(), s.tasks[0].trajectories, s.tasks[0].psnr), ("aba", 2, 22.5));
+        assert_eq!((s.tasks[1].task.as_str(), s.tasks[1].psnr), ("abca", 7.0));
         assert!(aba.lpips.is_none());
         let curve = s.curves.iter().find(|c| c.task == "aba").unwrap();
         assert_eq!(curve.psnr, vec![20.0, 20.0], "frame 0: (10 + 30) / 2; frame 1: only the longer leg");
