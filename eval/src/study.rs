@@ -235,10 +235,17 @@ pub fn study(o: &Settings, progress: &dyn Fn(Progress)) -> Result<Summary> {
         let policy = Policy { estimator: Estimator::MonteCarlo(MonteCarlo { samples, seed: 0 }), ..wp_policy.clone() };
         clean.push(RowSpec { name: format!("worldpack, Monte Carlo {samples}"), group: Group::Estimator, what: What::Model { model: wp, policy, steps: o.probe.steps } });
     }
-    for (name, _) in &o.probe.extra {
-        let model = model_index(name);
-        clean.push(RowSpec { name: name.clone(), group: Group::Size, what: What::Model { model, policy: models[model].1.trained_policy(), steps: o.probe.steps } });
-    }
+    // Extra models (other sizes, other training) run in every condition, pose noise included.
+    let extras: Vec<RowSpec> = o
+        .probe
+        .extra
+        .iter()
+        .map(|(name, _)| {
+            let model = model_index(name);
+            RowSpec { name: name.clone(), group: Group::Size, what: What::Model { model, policy: models[model].1.trained_policy(), steps: o.probe.steps } }
+        })
+        .collect();
+    clean.extend(extras.clone());
     clean.extend(references.clone());
 
     let mut conditions = vec![Condition { name: "clean".into(), change: Change::Clean, rows: clean, timed: true }];
@@ -250,6 +257,7 @@ pub fn study(o: &Settings, progress: &dyn Fn(Progress)) -> Result<Summary> {
     }
     for (name, change) in noise_conditions(o.quick, &o.vo) {
         let mut rows = variants.clone();
+        rows.extend(extras.clone());
         rows.extend(references.clone());
         conditions.push(Condition { name, change, rows, timed: false });
     }
