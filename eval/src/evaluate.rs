@@ -323,9 +323,10 @@ pub fn evaluate(s: &Settings, progress: &dyn Fn(Progress)) -> Result<Evaluation,
     Ok(Evaluation { summary, pooled: pooled_rows, against, revisit, strip, results: path })
 }
 
-/// Rolls the rule's trajectory out again for each strip row (with the noise
-/// it had in the suite, so the frames are the ones scored) and writes the
-/// truth and those rows as one picture.
+/// Rolls the rule's trajectory out again for each strip row, with the noise
+/// it had in the suite (so the frames are the ones scored, up to the batch
+/// tolerance of `Model::predict`), and writes the truth and those rows as one
+/// picture.
 fn strip(
     s: &Settings,
     trajs: &[Trajectory],
