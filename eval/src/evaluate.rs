@@ -76,8 +76,6 @@ pub enum Progress<'a> {
 const FVD_REPS: usize = 100;
 /// Bootstrap resamples of trajectories for the pooled intervals.
 const POOLED_REPS: usize = 4000;
-/// The base of every rollout's noise seeds.
-const ROLLOUT_SEED: u64 = 20261121;
 
 /// Which trained weights a policy runs with (memory::variants).
 pub fn weights_for(kind: PolicyKind) -> &'static str {
@@ -253,7 +251,7 @@ pub fn evaluate(s: &Settings, progress: &dyn Fn(Progress)) -> Result<Evaluation,
             suite: s.suite.display().to_string(),
             trajectories: trajs.iter().map(|t| t.entry.dir.clone()).collect(),
             steps: s.steps,
-            method: format!("{:?}", s.method).to_lowercase(),
+            method: s.method.name().into(),
             max_frames: s.max_frames,
             batch: s.batch,
             generated_level: s.generated_level,
@@ -273,7 +271,7 @@ pub fn evaluate(s: &Settings, progress: &dyn Fn(Progress)) -> Result<Evaluation,
             None => trajs.iter().map(|_| Vec::new()).collect(),
         };
         progress(Progress::RowStarted { row: &row.name, frames: frames_per_row });
-        let output = rollout(&trajs, row, &observed, s.max_frames, s.batch, ROLLOUT_SEED, &scorer, &|n| progress(Progress::Frames(n)))?;
+        let output = rollout(&trajs, row, &observed, s.max_frames, s.batch, crate::probe::SEED, &scorer, &|n| progress(Progress::Frames(n)))?;
         progress(Progress::RowDone);
         let mut fvd = Vec::new();
         if let Some(net) = &fvd_net {
@@ -300,7 +298,7 @@ pub fn evaluate(s: &Settings, progress: &dyn Fn(Progress)) -> Result<Evaluation,
         "format": "worldpack-eval/1",
         "suite": s.suite,
         "models": s.models,
-        "sampler": { "method": format!("{:?}", s.method).to_lowercase(), "steps": s.steps },
+        "sampler": { "method": s.method.name(), "steps": s.steps },
         "max_frames": s.max_frames,
         "weights": s.policies.iter().map(|&k| (k.name(), weights_for(k))).collect::<BTreeMap<_, _>>(),
         "trajectories": trajs.iter().map(|t| serde_json::json!({"dir": t.entry.dir, "task": t.entry.task, "range": t.entry.range,
@@ -347,7 +345,7 @@ fn strip(
             Some(m) => vec![encode_all(m, traj)?],
             None => vec![Vec::new()],
         };
-        let out = crate::rollout::rollout_as(std::slice::from_ref(traj), &[ti], row, &observed, s.max_frames, 1, ROLLOUT_SEED, &scorer, &|_| {})?;
+        let out = crate::rollout::rollout_as(std::slice::from_ref(traj), &[ti], row, &observed, s.max_frames, 1, crate::probe::SEED, &scorer, &|_| {})?;
         generated.push(out.frames.into_iter().next().unwrap_or_default());
     }
     let truth: Vec<&[u8]> = columns.iter().map(|&c| traj.frame(leg.start + c)).collect();

@@ -162,7 +162,7 @@ pub fn probe(o: &Settings, progress: &dyn Fn(Progress)) -> Result<Report, Progra
     rows.push(Row { name: REPROJECT.into(), predictor: Predictor::Reproject });
     row_models.extend([None, None]);
 
-    let settings = ProbeSettings { stride: o.stride, batch: o.batch, seed: 20261121 };
+    let settings = ProbeSettings { stride: o.stride, batch: o.batch, seed: crate::probe::SEED };
     let targets: usize = trajectories.iter().map(|t| t.return_frames(o.stride).len()).sum();
     progress(Progress::Started { trajectories: trajectories.len(), targets, rows: rows.len() });
 
@@ -191,7 +191,7 @@ pub fn probe(o: &Settings, progress: &dyn Fn(Progress)) -> Result<Report, Progra
             "format": "worldpack-probe/1",
             "suite": o.suite,
             "models": o.models,
-            "sampler": { "method": format!("{:?}", o.method).to_lowercase(), "steps": o.steps },
+            "sampler": { "method": o.method.name(), "steps": o.steps },
             "stride": o.stride,
             "bootstrap": { "reps": BOOTSTRAP_REPS, "resampled": "trajectories", "level": 0.95 },
             "rows": report.rows,

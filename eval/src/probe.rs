@@ -166,6 +166,10 @@ pub fn reference_image(traj: &Trajectory, how: &Predictor, plan: &ContextPlan, t
     }
 }
 
+/// The base of every probe's and rollout's noise seeds, so the same target
+/// gets the same noise in every program.
+pub const SEED: u64 = 20261121;
+
 /// The seed of the noise for target `t`: the same in every row and every
 /// batch, so rows differ only in what they are shown.
 pub fn target_seed(seed: u64, t: usize) -> u64 {

@@ -280,7 +280,7 @@ pub fn study(o: &Settings, progress: &dyn Fn(Progress)) -> Result<Summary> {
             models: c.rows.iter().map(|r| if let What::Model { model, .. } = r.what { Some(model_keys[model].clone()) } else { None }).collect(),
             stride: o.probe.stride,
             steps: c.rows.iter().map(|r| if let What::Model { steps, .. } = r.what { Some(steps) } else { None }).collect(),
-            method: format!("{:?}", o.probe.method).to_lowercase(),
+            method: o.probe.method.name().into(),
             batch: o.probe.batch,
             latency_calls: c.timed.then_some(o.probe.latency_calls),
             latency_threads: c.timed.then_some(1),
@@ -313,7 +313,7 @@ pub fn study(o: &Settings, progress: &dyn Fn(Progress)) -> Result<Summary> {
         "trajectories": trajectories.len(),
         "targets": targets,
         "stride": o.probe.stride,
-        "sampler": { "method": format!("{:?}", o.probe.method).to_lowercase(), "steps": o.probe.steps },
+        "sampler": { "method": o.probe.method.name(), "steps": o.probe.steps },
         "bootstrap": { "reps": BOOTSTRAP_REPS, "resampled": "trajectories", "level": 0.95 },
         "tradeoff": summary.tradeoff,
         "noise": summary.noise,
@@ -407,7 +407,7 @@ fn run_condition(
         }
     }
 
-    let settings = ProbeSettings { stride: o.probe.stride, batch: o.probe.batch, seed: 20261121 };
+    let settings = ProbeSettings { stride: o.probe.stride, batch: o.probe.batch, seed: crate::probe::SEED };
     let targets: usize = trajectories.iter().map(|t| t.return_frames(o.probe.stride).len()).sum();
     progress(Progress::Begin { what: &c.name, total: targets * rows.len() });
     let policies = selection_policies();
@@ -498,7 +498,7 @@ fn noisy_rollouts(
                     .collect::<Result<_, ProbeError>>()?,
                 _ => vec![Vec::new(); seen.len()],
             };
-            let r = crate::rollout::rollout(&seen, row, &observed, Some(o.rollout_frames), o.probe.batch, 20261121, &scorer, &|n| progress(Progress::Predictions(n)))?;
+            let r = crate::rollout::rollout(&seen, row, &observed, Some(o.rollout_frames), o.probe.batch, crate::probe::SEED, &scorer, &|n| progress(Progress::Predictions(n)))?;
             scores.push(r.scores);
         }
         progress(Progress::End);

@@ -12,6 +12,16 @@ pub enum Method {
     Ddim,
 }
 
+impl Method {
+    /// As flags, manifests and saved results write it (the inverse of `from_str`).
+    pub fn name(self) -> &'static str {
+        match self {
+            Method::Ancestral => "ancestral",
+            Method::Ddim => "ddim",
+        }
+    }
+}
+
 impl std::str::FromStr for Method {
     type Err = String;
     fn from_str(s: &str) -> Result<Self, String> {
