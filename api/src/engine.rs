@@ -120,7 +120,7 @@ impl Engine {
         let (plan, stats) = s.memory.select(&s.policy, &frustum, s.last_plan.as_ref());
         let select_ms = ms(t0);
         let action_values = action.to_vector().map(|v| v as f32);
-        let request = model::Request { plan: &plan, target_time: time, target_pose: &pose, action: &action_values, seed: seed.unwrap_or(time) };
+        let request = model::Request { plan: &plan, target_time: time, target_pose: &pose, action: &action_values, seed: seed.unwrap_or(time), warp: None };
         let frames = &s.frames;
         let lookup = |_: usize, id: u64| frames.get(id as usize).map(|f| ContextFrame { latent: &f.latent, time: f.time, pose: &f.pose, generated: f.generated });
         let mut prediction = m.predict(&s.policy.packing, &[request], &lookup, sampler)?;

@@ -8,7 +8,7 @@ use std::time::Instant;
 use memory::{ContextPlan, Estimator, FrameMemory, MemoryFrame, Packing, Policy, PolicyKind, Query, Ranking, ScoreWeights};
 use model::generate::frame_to_tensor;
 use model::pack::ContextFrame;
-use model::{Model, ModelError, Request, Sampler, Tensor};
+use model::{Model, ModelError, Request, Sampler, Tensor, WarpSource};
 use serde::Serialize;
 
 use crate::metrics::{psnr, sharpness_ratio, ssim};
@@ -109,19 +109,18 @@ fn policy_of<'a>(row: &'a Row, copy: &'a Policy) -> &'a Policy {
     }
 }
 
-/// Every row's plan for every target, from one pass over the trajectory.
-fn plans(traj: &Trajectory, rows: &[Row], targets: &[usize]) -> Result<Vec<Vec<ContextPlan>>, ProbeError> {
-    let copy = best_overlap_policy();
+/// Each policy's plan for every target, from one pass over the trajectory.
+fn plans(traj: &Trajectory, policies: &[&Policy], targets: &[usize]) -> Result<Vec<Vec<ContextPlan>>, ProbeError> {
     let frusta = traj.frusta()?;
-    let mut out: Vec<Vec<ContextPlan>> = rows.iter().map(|_| Vec::with_capacity(targets.len())).collect();
-    let mut previous: Vec<Option<ContextPlan>> = rows.iter().map(|_| None).collect();
+    let mut out: Vec<Vec<ContextPlan>> = policies.iter().map(|_| Vec::with_capacity(targets.len())).collect();
+    let mut previous: Vec<Option<ContextPlan>> = policies.iter().map(|_| None).collect();
     let mut store = FrameMemory::new();
     let mut next = targets.iter().peekable();
     for (t, frustum) in frusta.iter().enumerate() {
         if next.peek() == Some(&&t) {
             next.next();
-            for (i, row) in rows.iter().enumerate() {
-                let (plan, _) = store.select(policy_of(row, &copy), frustum, previous[i].as_ref());
+            for (i, policy) in policies.iter().enumerate() {
+                let (plan, _) = store.select(policy, frustum, previous[i].as_ref());
                 previous[i] = Some(plan.clone());
                 out[i].push(plan);
             }
@@ -156,6 +155,14 @@ pub fn encode_all(m: &Model, traj: &Trajectory) -> Result<Vec<Vec<f32>>, ProbeEr
     Ok(latents)
 }
 
+/// The stored frame a geometry model warps, and the non-learned references
+/// copy or warp: the first of a `best_overlap_policy` plan (the observed
+/// frame that overlaps the target view most), with its depth.
+pub fn warp_source<'a>(traj: &'a Trajectory, plan: &ContextPlan) -> Option<WarpSource<'a>> {
+    let s = plan.selected().next()?.1.id as usize;
+    Some(WarpSource { rgb: traj.frame(s), depth_mm: traj.depth(s), pose: &traj.poses[s], intrinsics: &traj.intrinsics })
+}
+
 /// What a non-learned reference shows for frame `t`: the first frame of
 /// `plan` (the best-overlap one), copied or warped into `t`'s pose.
 pub fn reference_image(traj: &Trajectory, how: &Predictor, plan: &ContextPlan, t: usize) -> Vec<u8> {
@@ -186,16 +193,26 @@ fn predict_model(
     latents: &[Vec<f32>],
     targets: &[usize],
     plans: &[ContextPlan],
+    best_overlap: &[ContextPlan],
     settings: &Settings,
     mut done: impl FnMut(usize, Vec<u8>),
 ) -> Result<(), ProbeError> {
     let frame = |_: usize, id: u64| latents.get(id as usize).map(|l| ContextFrame { latent: l, time: id, pose: &traj.poses[id as usize], generated: false });
     let size = settings.batch.max(1);
-    for (chunk, plans) in targets.chunks(size).zip(plans.chunks(size)) {
+    let warps = m.manifest().denoiser.warp.is_some();
+    for ((chunk, plans), sources) in targets.chunks(size).zip(plans.chunks(size)).zip(best_overlap.chunks(size)) {
         let requests: Vec<Request> = chunk
             .iter()
             .zip(plans)
-            .map(|(&t, plan)| Request { plan, target_time: t as u64, target_pose: &traj.poses[t], action: &traj.actions[t], seed: target_seed(settings.seed, t) })
+            .zip(sources)
+            .map(|((&t, plan), source)| Request {
+                plan,
+                target_time: t as u64,
+                target_pose: &traj.poses[t],
+                action: &traj.actions[t],
+                seed: target_seed(settings.seed, t),
+                warp: if warps { warp_source(traj, source) } else { None },
+            })
             .collect();
         let prediction = m.predict(&policy.packing, &requests, &frame, sampler)?;
         for (&t, p) in chunk.iter().zip(prediction.frames) {
@@ -216,7 +233,11 @@ pub fn probe_trajectory(
     progress: &dyn Fn(usize),
 ) -> Result<TrajectoryScores, ProbeError> {
     let targets = traj.return_frames(settings.stride);
-    let plans = plans(traj, rows, &targets)?;
+    // Each row's plans, then the best-overlap plans (geometry models' warp sources).
+    let copy = best_overlap_policy();
+    let policies: Vec<&Policy> = rows.iter().map(|r| policy_of(r, &copy)).chain([&copy]).collect();
+    let mut plans = plans(traj, &policies, &targets)?;
+    let best_overlap = plans.pop().expect("the best-overlap plans");
     let (w, h) = (traj.intrinsics.width as usize, traj.intrinsics.height as usize);
     let score = |t: usize, predicted: &[u8]| {
         let truth = traj.frame(t);
@@ -236,7 +257,7 @@ pub fn probe_trajectory(
                         model.manifest().image.height
                     )));
                 }
-                predict_model(model, policy, sampler, traj, &latents, &targets, plans, settings, |t, img| {
+                predict_model(model, policy, sampler, traj, &latents, &targets, plans, &best_overlap, settings, |t, img| {
                     out.push(score(t, &img));
                     progress(1);
                 })?;
@@ -278,7 +299,9 @@ pub fn latency_ms(traj: &Trajectory, row: &Row, latents: &[Vec<f32>], calls: usi
             let (plan, _) = store.select(policy, &frusta[t], None);
             match &row.predictor {
                 Predictor::Model { model, policy, sampler } => {
-                    predict_model(model, policy, sampler, traj, latents, &[t], &[plan], &settings, |_, img| {
+                    // A geometry model's warp source is chosen within the timed call too.
+                    let source = if model.manifest().denoiser.warp.is_some() { store.select(&copy, &frusta[t], None).0 } else { plan.clone() };
+                    predict_model(model, policy, sampler, traj, latents, &[t], &[plan], &[source], &settings, |_, img| {
                         std::hint::black_box(img);
                     })?;
                 }

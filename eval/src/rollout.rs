@@ -9,7 +9,7 @@ use model::pack::ContextFrame;
 use model::Request;
 
 use crate::features::{Embedding, FeatureError, Lpips, VideoFeatures, frechet_distance};
-use crate::probe::{FrameScore, Predictor, ProbeError, Row, best_overlap_policy, reference_image};
+use crate::probe::{FrameScore, Predictor, ProbeError, Row, best_overlap_policy, reference_image, warp_source};
 use crate::suite::Trajectory;
 
 /// The frames a rollout generates: the return leg, from the returning point,
@@ -32,6 +32,8 @@ struct Run<'a> {
     traj: &'a Trajectory,
     frusta: Vec<Frustum>,
     store: FrameMemory,
+    /// The exploration alone: where a geometry model's warp sources come from.
+    observed: FrameMemory,
     latents: Vec<Vec<f32>>,
     previous: Option<ContextPlan>,
     next: usize,
@@ -116,6 +118,8 @@ pub fn rollout_as(
         }
         Predictor::Model { model, policy, sampler } => {
             model.layout_for(&policy.packing)?; // before any work: a policy the model cannot take fails at once
+            let warps = model.manifest().denoiser.warp.is_some();
+            let best_overlap = best_overlap_policy();
             let mut runs = trajs
                 .iter()
                 .zip(observed_latents)
@@ -124,6 +128,7 @@ pub fn rollout_as(
                     let frusta = traj.frusta()?;
                     Ok(Run {
                         store: observed(&frusta, range.start)?,
+                        observed: observed(&frusta, if warps { range.start } else { 0 })?,
                         latents: lat[..range.start].to_vec(),
                         frusta,
                         traj,
@@ -142,18 +147,28 @@ pub fn rollout_as(
                 }
                 for chunk in active.chunks(batch.max(1)) {
                     let mut plans = Vec::with_capacity(chunk.len());
+                    let mut sources = Vec::with_capacity(chunk.len());
                     for &i in chunk {
                         let r = &mut runs[i];
                         let (plan, _) = r.store.select(policy, &r.frusta[r.next], r.previous.as_ref());
                         r.previous = Some(plan.clone());
                         plans.push(plan);
+                        sources.push(warps.then(|| r.observed.select(&best_overlap, &r.frusta[r.next], None).0));
                     }
                     let requests: Vec<Request> = chunk
                         .iter()
                         .zip(&plans)
-                        .map(|(&i, plan)| {
+                        .zip(&sources)
+                        .map(|((&i, plan), source)| {
                             let (r, t) = (&runs[i], runs[i].next);
-                            Request { plan, target_time: t as u64, target_pose: &r.traj.poses[t], action: &r.traj.actions[t], seed: frame_seed(seed, suite_index[i], t) }
+                            Request {
+                                plan,
+                                target_time: t as u64,
+                                target_pose: &r.traj.poses[t],
+                                action: &r.traj.actions[t],
+                                seed: frame_seed(seed, suite_index[i], t),
+                                warp: source.as_ref().and_then(|s| warp_source(r.traj, s)),
+                            }
                         })
                         .collect();
                     // Frames from the returning point on are the model's own.

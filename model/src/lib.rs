@@ -15,6 +15,7 @@ pub mod pack;
 pub mod predict;
 pub mod runtime;
 pub mod sampler;
+pub mod warp;
 
 use std::path::{Path, PathBuf};
 
@@ -25,6 +26,7 @@ pub use manifest::Manifest;
 pub use predict::{Predicted, Request};
 pub use runtime::{Provider, RuntimeOptions};
 pub use sampler::{Method, Sampler};
+pub use warp::WarpSource;
 
 /// A loaded model: its folder, manifest, and the backend that runs its graphs.
 pub struct Model {

@@ -141,6 +141,18 @@ pub struct DenoiserSpec {
     /// (`context_noise_r<rate>` inputs): which level marks which frames.
     #[serde(default)]
     pub context_noise: Option<ContextNoiseSpec>,
+    /// Present when the denoiser takes a stored frame depth-warped into the
+    /// target view (the geometry model; `crate::warp`).
+    #[serde(default)]
+    pub warp: Option<WarpSpec>,
+}
+
+/// The geometry model's extra input: the warped frame's scaled latent and
+/// the share of each latent cell the warp covers, `channels` = latent + 1.
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+pub struct WarpSpec {
+    pub input: String,
+    pub channels: usize,
 }
 
 /// The context noise levels the runtime feeds: training corrupted context
@@ -240,6 +252,19 @@ impl Manifest {
             }
             if noise_inputs != 0 && noise_inputs != layout.slots.len() {
                 return bad(&format!("{at}.inputs"), "context noise levels for some rates but not all".into());
+            }
+            if let Some(w) = &d.warp {
+                if !layout.inputs.iter().any(|i| i.name == w.input) {
+                    return bad(&format!("{at}.inputs"), format!("denoiser.warp names the input {:?}, which this layout lacks", w.input));
+                }
+            }
+        }
+        if let Some(w) = &d.warp {
+            if w.channels != a.latent.channels + 1 {
+                return bad("denoiser.warp.channels", format!("expected the latent's {} channels plus coverage, got {}", a.latent.channels, w.channels));
+            }
+            if self.image.height % a.latent.height != 0 || self.image.width % a.latent.width != 0 {
+                return bad("denoiser.warp", "the image must be a whole multiple of the latent to pool the coverage".into());
             }
         }
         let f = &self.diffusion;

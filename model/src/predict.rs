@@ -13,6 +13,7 @@ use crate::graph::Tensor;
 use crate::manifest::LayoutSpec;
 use crate::pack::{ContextFrame, pack, stack};
 use crate::sampler::Sampler;
+use crate::warp::{WarpSource, coverage_grid, forward_warp, warped_image};
 use crate::Model;
 
 /// One next frame to predict.
@@ -26,6 +27,10 @@ pub struct Request<'a> {
     pub action: &'a [f32],
     /// Seeds this item's noise alone: the same seed gives the same frame in any batch.
     pub seed: u64,
+    /// The stored frame with depth that a geometry model warps into the
+    /// target view (`None`: none at hand, and the model gets an empty warp,
+    /// as in training). Models without the warp input ignore it.
+    pub warp: Option<WarpSource<'a>>,
 }
 
 /// A predicted frame: its scaled latent (for the memory) and its RGB pixels.
@@ -40,6 +45,8 @@ pub struct Predicted {
 pub struct Prediction {
     pub frames: Vec<Predicted>,
     pub layout: String,
+    /// Warping and encoding the geometry model's warp input (0 without one).
+    pub warp_ms: f64,
     pub sample_ms: f64,
     pub decode_ms: f64,
 }
@@ -87,7 +94,13 @@ impl Model {
             packed.push(pack(layout, &manifest.autoencoder.latent, noise, r.plan, r.target_time, r.target_pose, |id| frame(i, id))?);
         }
         let contexts: Vec<&[(String, Tensor)]> = packed.iter().map(|p| p.tensors.as_slice()).collect();
-        let context = stack(&contexts);
+        let mut context = stack(&contexts);
+        let started = Instant::now();
+        if let Some(spec) = &manifest.denoiser.warp {
+            let items: Vec<_> = requests.iter().map(|r| (r.warp, r.target_pose)).collect();
+            context.push((spec.input.clone(), self.warp_input(&items)?));
+        }
+        let warp_ms = started.elapsed().as_secs_f64() * 1e3;
         let action = Tensor::new(vec![requests.len(), width], actions);
         let rel_time = Tensor::new(vec![requests.len()], packed.iter().map(|p| p.rel_time).collect());
         let seeds: Vec<u64> = requests.iter().map(|r| r.seed).collect();
@@ -101,6 +114,43 @@ impl Model {
         let frames = (0..requests.len())
             .map(|j| Ok(Predicted { latent: latent.data[j * per..(j + 1) * per].to_vec(), rgb: tensor_to_frame(&images, j)? }))
             .collect::<Result<Vec<_>, ModelError>>()?;
-        Ok(Prediction { frames, layout: layout.name.clone(), sample_ms, decode_ms: started.elapsed().as_secs_f64() * 1e3 })
+        Ok(Prediction { frames, layout: layout.name.clone(), warp_ms, sample_ms, decode_ms: started.elapsed().as_secs_f64() * 1e3 })
+    }
+
+    /// The geometry model's warp input for a batch, (B, C + 1, h, w): each
+    /// item's source warped into its target pose and encoded, then the share
+    /// of each latent cell the warp covers. No source: an empty warp.
+    pub fn warp_input(&self, items: &[(Option<WarpSource>, &Pose)]) -> Result<Tensor, ModelError> {
+        let m = self.manifest();
+        let (w, h) = (m.image.width, m.image.height);
+        let l = &m.autoencoder.latent;
+        let cells = l.height * l.width;
+        let mut images = Vec::with_capacity(items.len() * 3 * w * h);
+        let mut cover = Vec::with_capacity(items.len());
+        for (source, target) in items {
+            match source {
+                Some(src) => {
+                    let k = src.intrinsics;
+                    if (k.width as usize, k.height as usize) != (w, h) {
+                        return Err(ModelError::input("warp", format!("the source frame is {}x{}, the model takes {w}x{h}", k.width, k.height)));
+                    }
+                    let warped = forward_warp(src, target)?;
+                    images.extend(warped_image(&warped));
+                    cover.push(coverage_grid(&warped.mask, w, h, h / l.height));
+                }
+                None => {
+                    images.extend(std::iter::repeat_n(0.0, 3 * w * h));
+                    cover.push(vec![0.0; cells]);
+                }
+            }
+        }
+        let latents = self.encode(&Tensor::new(vec![items.len(), 3, h, w], images))?;
+        let per = l.len();
+        let mut data = Vec::with_capacity(items.len() * (per + cells));
+        for (j, c) in cover.iter().enumerate() {
+            data.extend_from_slice(&latents.data[j * per..(j + 1) * per]);
+            data.extend_from_slice(c);
+        }
+        Ok(Tensor::new(vec![items.len(), l.channels + 1, l.height, l.width], data))
     }
 }

@@ -61,6 +61,8 @@ def main() -> None:
     p.add_argument("--memory-focus", type=float, default=0.0,
                    help="share of each batch drawn from targets that need memory beyond the 4 newest frames "
                         "(needs `worldpack plan --memory-need`; 0: uniform)")
+    p.add_argument("--warp", action="store_true",
+                   help="the geometry model: a stored frame depth-warped into the target view is a model input (warp.py)")
     recipe_options(p)
 
     p = sub.add_parser("variants", help="the paper's order: the 4-frame baseline from scratch, then nearest frame "
@@ -114,7 +116,7 @@ def main() -> None:
             train.train_autoencoder(a.data, a.run, 4000, 32, 1e-3, a.device, a.minutes)
         train.encode(a.data, a.run, a.device)  # skips trajectories already cached
         train.train_cdit(a.data, a.run, a.policy, a.steps, a.batch, a.lr, a.ema, a.device, a.minutes, a.init_from, a.memory_focus,
-                         recipe_of(a))
+                         recipe_of(a), a.warp)
     elif a.stage == "variants":
         train.train_variants(a.data, a.run, a.baseline_steps, a.fraction, a.batch, a.lr, a.ema, a.device, a.minutes,
                              a.memory_focus, a.baseline, a.policies.split(",") if a.policies else None, recipe_of(a))

@@ -163,6 +163,9 @@ class CDiT(nn.Module):
             self.register_buffer("landing_depth", torch.tensor(cfg.landing_depths, dtype=torch.float32), persistent=False)
             # Zero: a fine-tune starts as the model it came from and opens these as they help.
             self.landing_gate = nn.Parameter(torch.zeros(len(cfg.landing_depths), h))
+        if cfg.warp:
+            # Latent channels plus coverage, patchified onto the target's own tokens (no context slot).
+            self.warp_proj = nn.Conv2d(c + 1, h, p, stride=p)
         self.t_embed = ScalarEmbedder(h)
         self.rel_time_embed = ScalarEmbedder(h, cfg.time_unit)
         self.action_embed = nn.Sequential(nn.Linear(cfg.action_dim, h), nn.SiLU(), nn.Linear(h, h))
@@ -198,6 +201,10 @@ class CDiT(nn.Module):
             # Zero: a fine-tune from a model without it starts as that model.
             nn.init.normal_(self.context_noise_embed.mlp[0].weight, std=0.02)
             nn.init.zeros_(self.context_noise_embed.mlp[2].weight)
+        if self.cfg.warp:
+            # Zero: a fine-tune from a model without the warp starts as that model.
+            nn.init.zeros_(self.warp_proj.weight)
+            nn.init.zeros_(self.warp_proj.bias)
         for blk in self.blocks:
             nn.init.zeros_(blk.ada[-1].weight)
             nn.init.zeros_(blk.ada[-1].bias)
@@ -259,11 +266,12 @@ class CDiT(nn.Module):
         token_mask = mask.unsqueeze(-1).expand(b, s, n).reshape(b, s * n)
         return tokens, positions, token_mask
 
-    def forward(self, x_t, timestep, action, rel_time, groups, rates=None):
+    def forward(self, x_t, timestep, action, rel_time, groups, rates=None, warp=None):
         """groups: per rate in `rates` (default cfg.rates order of the layout),
         a tuple (frames (B,S,C,h,w), time offsets (B,S), relative poses (B,S,12),
-        mask (B,S)[, noise levels (B,S) with `context_noise`]). Returns the
-        predicted noise, shaped like x_t."""
+        mask (B,S)[, noise levels (B,S) with `context_noise`]). `warp`
+        (B,C+1,h,w): the warped frame's latent and coverage (models with
+        `warp`; `warp.warp_input`). Returns the predicted noise, shaped like x_t."""
         rates = rates or self.cfg.rates
         want = 5 if self.cfg.context_noise else 4
         if len(groups) != len(rates) or any(len(g) != want for g in groups):
@@ -271,6 +279,10 @@ class CDiT(nn.Module):
         b, c, hh, ww = x_t.shape
         p = self.cfg.patch
         x = self.patchify(x_t).flatten(2).transpose(1, 2) + self.pos_r1
+        if self.cfg.warp:
+            if warp is None:
+                raise ValueError("this model takes a warp input (cfg.warp)")
+            x = x + self.warp_proj(warp).flatten(2).transpose(1, 2)
         cond = self.t_embed(timestep) + self.rel_time_embed(rel_time) + self.action_embed(action * self.action_scale)
         parts = [self.embed_group(r, *g) for r, g in zip(rates, groups)]
         context = torch.cat([t for t, _, _ in parts], dim=1)

@@ -79,6 +79,10 @@ class CDiTConfig:
     # training corrupts context latents by that much, and at inference the
     # runtime tells the model which frames it generated itself. False: older runs.
     context_noise: bool = False
+    # The geometry model: a stored frame depth-warped into the target view
+    # (its latent and coverage, `warp.py`) is added to the target's own
+    # tokens through a projection of its own. False: older runs.
+    warp: bool = False
 
     @property
     def grid(self) -> int:

@@ -62,6 +62,8 @@ class Batch:
     groups: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]
     # (trajectory, frame) of each target, so a trainer can gather related batches.
     rows: list[tuple[int, int]]
+    # The stored frame each target's warp comes from (-1: none), with `warp`.
+    warp_sources: list[int] | None = None
 
 
 # A target needs memory when at least this share of its view is shown only by
@@ -77,7 +79,8 @@ class PlannedLatents:
     targets that need memory (`memory-need.npy` from `worldpack plan
     --memory-need`), the rest uniformly as without it."""
 
-    def __init__(self, root: Path, latent_dir: Path, policy: str, layout: Layout, memory_focus: float = 0.0):
+    def __init__(self, root: Path, latent_dir: Path, policy: str, layout: Layout, memory_focus: float = 0.0,
+                 warp: bool = False):
         if not 0.0 <= memory_focus <= 1.0:
             raise SystemExit(f"--memory-focus: must be in [0, 1], got {memory_focus}")
         self.layout = layout
@@ -101,6 +104,12 @@ class PlannedLatents:
             self.actions.append(np.load(d / "actions.npy"))
             self.plans.append(np.load(d / entry["file"]))
         self.sizes = np.array([len(p) - 1 for p in self.plans])  # frame 0 has no context
+        self.warp = warp
+        if warp:  # the pixels and depth warps are made from, memory-mapped
+            dirs = trajectories(root)
+            self.rgb = [np.load(d / "rgb.npy", mmap_mode="r") for d in dirs]
+            self.depth = [np.load(d / "depth.npy", mmap_mode="r") for d in dirs]
+            self.intrinsics = json.loads((dirs[0] / "meta.json").read_text())["intrinsics"]
         self.needy = np.zeros((0, 2), np.int64)
         if memory_focus > 0:
             self.needy = self.memory_targets(root)
@@ -131,9 +140,39 @@ class PlannedLatents:
             rows.append((i, t))
         if focused:
             rows += [(int(i), int(t)) for i, t in self.needy[rng.integers(len(self.needy), size=focused)]]
-        return self.gather(rows)
+        return self.gather(rows, self.draw_warp_sources(rng, rows) if self.warp else None)
 
-    def gather(self, rows: list[tuple[int, int]]) -> Batch:
+    # How a training target's warp source is drawn from its plan: the first
+    # slot (the newest or best frame), any selected frame (older memories
+    # warp with more holes, as on a return leg), or none (no depth at hand).
+    WARP_FIRST, WARP_ANY, WARP_NONE = 0.3, 0.6, 0.1
+
+    def draw_warp_sources(self, rng: np.random.Generator, rows: list[tuple[int, int]]) -> list[int]:
+        out = []
+        for i, t in rows:
+            ids = self.plans[i][t]
+            present = ids[ids >= 0]
+            u = rng.random()
+            if len(present) == 0 or u >= self.WARP_FIRST + self.WARP_ANY:
+                out.append(-1)
+            elif u < self.WARP_FIRST:
+                out.append(int(present[0]))
+            else:
+                out.append(int(rng.choice(present)))
+        return out
+
+    def warp_pixels(self, batch: Batch):
+        """NumPy inputs of `warp.forward_warp` for a batch: source RGB and depth,
+        source and target camera-to-world poses, and which rows have a source."""
+        src = [s if s >= 0 else t for (_, t), s in zip(batch.rows, batch.warp_sources)]
+        rgb = np.stack([self.rgb[i][s] for (i, _), s in zip(batch.rows, src)])
+        depth = np.stack([self.depth[i][s] for (i, _), s in zip(batch.rows, src)]).astype(np.int32)
+        src_pose = np.stack([self.poses[i][s] for (i, _), s in zip(batch.rows, src)])
+        dst_pose = np.stack([self.poses[i][t] for i, t in batch.rows])
+        has = np.array([s >= 0 for s in batch.warp_sources])
+        return rgb, depth, src_pose, dst_pose, has
+
+    def gather(self, rows: list[tuple[int, int]], warp_sources: list[int] | None = None) -> Batch:
         targets, actions, rel_times, slots = [], [], [], []
         for i, t in rows:
             ids = self.plans[i][t]
@@ -152,4 +191,7 @@ class PlannedLatents:
             part = slice(start, start + count)
             groups.append(tuple(np.stack([s[k][part] for s in slots]) for k in range(4)))
             start += count
-        return Batch(np.stack(targets), np.stack(actions).astype(np.float32), np.array(rel_times, np.float32), groups, list(rows))
+        if self.warp and warp_sources is None:  # deterministic: the first selected frame
+            warp_sources = [int(next(iter(self.plans[i][t][self.plans[i][t] >= 0]), -1)) for i, t in rows]
+        return Batch(np.stack(targets), np.stack(actions).astype(np.float32), np.array(rel_times, np.float32), groups,
+                     list(rows), warp_sources)

@@ -23,6 +23,7 @@ from .autoencoder import psnr
 from .cdit import CDiT
 from .config import ACTION_NAMES, ACTION_SCALE, LAYOUTS, Layout, ModelConfig, tokens_per_frame
 from .diffusion import Schedule, sample
+from .warp import batch_warp, forward_warp, warp_input
 from .train import evaluate_autoencoder, load_autoencoder, pick_device, run_config
 
 MANIFEST_FORMAT = "worldpack-model/1"
@@ -42,7 +43,7 @@ def input_names(cfg: ModelConfig, layout: Layout) -> list[str]:
     names = ["x_t", "timestep", "action", "rel_time"]
     for r in layout.rates:
         names += [f"{k}_r{r}" for k in context_keys(cfg)]
-    return names
+    return names + (["warp"] if cfg.cdit.warp else [])
 
 
 class LayoutGraph(nn.Module):
@@ -56,7 +57,8 @@ class LayoutGraph(nn.Module):
     def forward(self, x_t, timestep, action, rel_time, *context):
         k = self.per_group
         groups = [tuple(context[k * i: k * i + k]) for i in range(len(self.layout.rates))]
-        return self.model(x_t, timestep, action, rel_time, groups, rates=self.layout.rates)
+        warp = context[-1] if self.model.cfg.warp else None
+        return self.model(x_t, timestep, action, rel_time, groups, rates=self.layout.rates, warp=warp)
 
 
 def to_onnx(module: nn.Module, args: tuple, names: list[str], outputs: list[str]) -> onnx.ModelProto:
@@ -160,6 +162,10 @@ def denoiser_io(cfg: ModelConfig, layout: Layout) -> tuple[list[dict], list[dict
             ins.append(tensor_spec(f"context_noise_r{r}", ["batch", n], "float32",
                                    "context noise level per slot: 0 for an observed frame, denoiser.context_noise.generated_level "
                                    "for a frame the model generated (0 in empty slots)"))
+    if cfg.cdit.warp:
+        ins.append(tensor_spec("warp", ["batch", c + 1, s, s], "float32",
+                               "a stored frame depth-warped into the target view (denoiser.warp): its scaled latent "
+                               "(holes 0 in the image before encoding), then the share of each latent cell it covers"))
     outs = [tensor_spec("eps", ["batch", c, s, s], "float32", "predicted noise epsilon")]
     return ins, outs
 
@@ -230,7 +236,7 @@ def export(run: Path, policy: str, layout_names: list[str], data: Path, out: Pat
         missing = set(layout.rates) - set(cfg.cdit.rates)
         if missing:
             raise SystemExit(f"--layouts {name}: the model has no projection for rates {sorted(missing)}")
-        source = wdata.PlannedLatents(data, latent_dir, name, layout)
+        source = wdata.PlannedLatents(data, latent_dir, name, layout, warp=cfg.cdit.warp)
         rows = reference_rows(source, REFERENCE_BATCH)
         batch = source.gather(rows)
         noise = rng.standard_normal(batch.target.shape).astype(np.float32)
@@ -243,6 +249,8 @@ def export(run: Path, policy: str, layout_names: list[str], data: Path, out: Pat
                 g = (*g, (rng.uniform(0, 0.3, g[3].shape) * g[3]).astype(np.float32))
             for key, arr in zip(context_keys(cfg), g):
                 arrays[f"{key}_r{r}"] = arr
+        if cfg.cdit.warp:
+            arrays["warp"] = batch_warp(source, batch, ae, torch.device("cpu")).numpy()
         names = input_names(cfg, layout)
         args = tuple(torch.from_numpy(arrays[n]) for n in names)
         graph = LayoutGraph(model, layout)
@@ -297,6 +305,8 @@ def export(run: Path, policy: str, layout_names: list[str], data: Path, out: Pat
         traces[method] = {"folder": f"reference/trace_{method}", "layout": trace_layout, "steps": TRACE_STEPS,
                           "eta": 0.0, "conditioning": f"reference/denoiser_{trace_layout} (all inputs but x_t and timestep)"}
 
+    if cfg.cdit.warp:
+        save_arrays(ref / "warp", warp_cases(data, ae))
     metrics = measure(cfg, ae, model, data, latent_dir, layout_names, sched)
     for f in latent_dir.iterdir():
         f.unlink()
@@ -332,6 +342,14 @@ def export(run: Path, policy: str, layout_names: list[str], data: Path, out: Pat
             "weights": "denoiser.weights",
             "weights_storage": "float16 (parameters rounded to float16 before export; computed in float32)" if half else "float32",
             "layouts": layouts_json,
+            **({"warp": {"input": "warp", "channels": cfg.cdit.latent_channels + 1,
+                         "source": "the observed stored frame with depth that overlaps the target view most (the reproject reference's choice)",
+                         "warp": "each source pixel splatted to the target pixel floor(x + 0.5) behind a z-buffer, ties to the earlier "
+                                 "pixel; depth 0 is a direction at infinity (rotation only); holes 0 in the [-1, 1] image",
+                         "latent": "encoder(image * mask) * latent_scale, then the mask average-pooled by the autoencoder's downsample",
+                         "without_source": "all zeros (no frame with depth)",
+                         "reference": "reference/warp"}}
+               if cfg.cdit.warp else {}),
             **({"context_noise": {"observed_level": 0.0, "generated_level": ckpt.get("recipe", {}).get("generated_level", 0.0),
                                   "meaning": "the level the runtime puts in context_noise_r<rate> for observed and for generated frames"}}
                if cfg.cdit.context_noise else {}),
@@ -383,21 +401,23 @@ def measure(cfg: ModelConfig, ae, model: CDiT, data: Path, latent_dir: Path, lay
     rng = np.random.default_rng(3)
     for name in layout_names:
         layout = LAYOUTS[name]
-        source = wdata.PlannedLatents(data, latent_dir, name, layout)
+        source = wdata.PlannedLatents(data, latent_dir, name, layout, warp=cfg.cdit.warp)
         batch = source.batch(rng, 64)
         groups = [tuple(torch.from_numpy(x) for x in g) for g in batch.groups]
         if cfg.cdit.context_noise:  # every context frame observed
             groups = [(*g, torch.zeros_like(g[3])) for g in groups]
+        warp = batch_warp(source, batch, ae, torch.device("cpu")) if cfg.cdit.warp else None
         x0 = torch.from_numpy(batch.target)
         act, rel = torch.from_numpy(batch.action), torch.from_numpy(batch.rel_time)
         t = torch.from_numpy(rng.integers(0, cfg.diffusion.timesteps, 64)).float()
         ab = torch.tensor(sched.alphas_cumprod, dtype=torch.float32)[t.long()].view(-1, 1, 1, 1)
         noise = torch.randn(x0.shape, generator=torch.Generator().manual_seed(0))
-        eps = model(ab.sqrt() * x0 + (1 - ab).sqrt() * noise, t, act, rel, groups, rates=layout.rates)
+        eps = model(ab.sqrt() * x0 + (1 - ab).sqrt() * noise, t, act, rel, groups, rates=layout.rates, warp=warp)
         entry = {"eps_mse": round(float(((eps - noise) ** 2).mean()), 4)}
         n = 16
         sub = [tuple(x[:n] for x in g) for g in groups]
-        fn = lambda x, tt: model(torch.from_numpy(x), torch.from_numpy(tt), act[:n], rel[:n], sub, rates=layout.rates).numpy()
+        w = warp[:n] if warp is not None else None
+        fn = lambda x, tt: model(torch.from_numpy(x), torch.from_numpy(tt), act[:n], rel[:n], sub, rates=layout.rates, warp=w).numpy()
         tr = sample(fn, sched, rng.standard_normal(x0[:n].shape).astype(np.float32), 20, "ancestral", rng=rng)
         pred = ae.decoder(torch.from_numpy(tr.x[-1]) / ae.scale)
         truth = ae.decoder(x0[:n] / ae.scale)
@@ -415,3 +435,33 @@ def measure(cfg: ModelConfig, ae, model: CDiT, data: Path, latent_dir: Path, lay
         entry["copy_last_frame_psnr_db"] = round(psnr(copy, truth), 2)
         out[name] = entry
     return out
+
+
+WARP_GAPS = (1, 4, 12, 40)  # source frames this far before the target: from near-identical to mostly holes
+
+
+@torch.no_grad()
+def warp_cases(data: Path, ae) -> dict[str, np.ndarray]:
+    """Reference cases for the Rust warp (`model::warp`): source frames with
+    depth, both poses, and what `warp.forward_warp` and `warp.warp_input` made.
+    One case per gap, the first target from mid-trajectory on whose warp
+    covers at least a fifth of the view (a case with nothing warped checks little)."""
+    d = wdata.trajectories(data)[0]
+    rgb, depth, poses = np.load(d / "rgb.npy"), np.load(d / "depth.npy"), np.load(d / "poses.npy")
+    intrinsics = json.loads((d / "meta.json").read_text())["intrinsics"]
+    warp = lambda s, t: forward_warp(torch.from_numpy(rgb[s]), torch.from_numpy(depth[s].astype(np.int32)), intrinsics,
+                                     torch.from_numpy(poses[s]), torch.from_numpy(poses[t]))
+    src, dst = [], []
+    for gap in WARP_GAPS:
+        targets = np.arange(max(gap, len(rgb) // 2), len(rgb))
+        _, mask = warp(targets - gap, targets)
+        covered = targets[mask.float().mean(dim=(1, 2)).numpy() >= 0.2]
+        if len(covered) == 0:
+            raise SystemExit(f"export: no frame of {d} has a warp from {gap} frames back covering a fifth of the view")
+        src.append(covered[0] - gap)
+        dst.append(covered[0])
+    src, dst = np.array(src), np.array(dst)
+    warped, mask = warp(src, dst)
+    inp = warp_input(ae.encoder, ae.scale, warped, mask, ae.cfg.downsample)
+    return {"rgb": rgb[src], "depth_mm": depth[src], "src_c2w": poses[src], "dst_c2w": poses[dst],
+            "warped": warped.numpy(), "mask": mask.numpy().astype(np.uint8), "input": inp.numpy().astype(np.float32)}

@@ -19,6 +19,7 @@ from .cdit import CDiT
 from .config import LAYOUTS, ModelConfig
 from .diffusion import Schedule
 from .recipe import ContextAugmenter, Recipe
+from .warp import batch_warp
 
 
 def pick_device(name: str) -> torch.device:
@@ -139,7 +140,7 @@ def load_initial_weights(model: CDiT, init_from: Path, dev: torch.device) -> Non
     leaves them: zero-gated or re-derived), and nothing may be left over."""
     base = torch.load(init_from, map_location=dev)["ema"]
     own = model.state_dict()
-    added_by_options = ("landing_gate", "context_noise_embed.", "rate_proj.")
+    added_by_options = ("landing_gate", "context_noise_embed.", "rate_proj.", "warp_proj.")
     missing = [k for k in own if k not in base]
     unexpected = [k for k in base if k not in own]
     refused = [k for k in missing if not k.startswith(added_by_options)]
@@ -156,10 +157,18 @@ def load_initial_weights(model: CDiT, init_from: Path, dev: torch.device) -> Non
 
 def train_cdit(data: Path, run: Path, policy: str, steps: int, batch: int, lr: float, ema_decay: float,
                device: str, minutes: float | None, init_from: Path | None, memory_focus: float = 0.0,
-               recipe: Recipe | None = None) -> None:
+               recipe: Recipe | None = None, warp: bool = False) -> None:
     recipe = recipe or Recipe()
     recipe.check()
     cfg = run_config(run)
+    if warp and not cfg.cdit.warp:
+        if any(run.glob("cdit-*.pt")):
+            raise SystemExit(f"--warp: {run} already holds CDiT checkpoints without the warp input: use another --run")
+        cfg.cdit.warp = True
+        (run / "config.json").write_text(json.dumps(cfg.to_json(), indent=2))
+        print(f"{run}/config.json: warp turned on (a depth-warped stored frame is now a model input)")
+    if cfg.cdit.warp and recipe.rollout_share > 0:
+        raise SystemExit("--rollout-share: rollout fine-tuning does not make warps for its predictions yet; use it without --warp")
     if recipe.needs_noise_input() and not cfg.cdit.context_noise:
         if any(run.glob("cdit-*.pt")):
             raise SystemExit(f"--context-noise/--generated-level need the context-noise input, and {run} already holds "
@@ -172,7 +181,7 @@ def train_cdit(data: Path, run: Path, policy: str, steps: int, batch: int, lr: f
     missing = set(layout.rates) - set(cfg.cdit.rates)
     if missing:
         raise SystemExit(f"--policy {policy}: the model has no projection for rates {sorted(missing)}")
-    source = wdata.PlannedLatents(data, run / "latents", policy, layout, memory_focus)
+    source = wdata.PlannedLatents(data, run / "latents", policy, layout, memory_focus, warp=cfg.cdit.warp)
     if memory_focus:
         print(f"{memory_focus:.0%} of each batch from the {len(source.needy):,} targets that need memory")
     model = CDiT(cfg.cdit).to(dev)
@@ -212,6 +221,8 @@ def train_cdit(data: Path, run: Path, policy: str, steps: int, batch: int, lr: f
     ema.requires_grad_(False)
     rng = np.random.default_rng(1000 + step)
     torch.manual_seed(1000 + step)
+    # The frozen encoder turns each batch's warped frames into the model's warp input.
+    encoder = load_autoencoder(run, dev).requires_grad_(False) if cfg.cdit.warp else None
     augment = ContextAugmenter(recipe, source, layout.rates, alpha_bar, cfg.cdit.context_noise, 2000 + step, dev)
     deadline = time.time() + minutes * 60 if minutes is not None else math.inf
     bar = tqdm(total=steps, initial=step, desc=f"cdit {policy}", unit="step")
@@ -220,14 +231,16 @@ def train_cdit(data: Path, run: Path, policy: str, steps: int, batch: int, lr: f
                               policy=policy, memory_focus=memory_focus, init_from=origin, recipe=recipe.to_json(),
                               plans_query=source.plans_query)
     while step < steps and time.time() < deadline:
-        x0, action, rel_time, groups = augment(source.batch(rng, batch), ema)
+        drawn = source.batch(rng, batch)
+        x0, action, rel_time, groups = augment(drawn, ema)
+        warp_in = batch_warp(source, drawn, encoder, dev) if encoder is not None else None
         t = torch.randint(0, cfg.diffusion.timesteps, (batch,), device=dev)
         noise = torch.randn_like(x0)
         ab = alpha_bar[t].view(-1, 1, 1, 1)
         xt = ab.sqrt() * x0 + (1 - ab).sqrt() * noise
         # The layout's own rates, as the export passes them: a layout whose rates
         # are not a prefix of the model's must not train with the wrong projections.
-        eps = model(xt, t.float(), action, rel_time, groups, rates=layout.rates)
+        eps = model(xt, t.float(), action, rel_time, groups, rates=layout.rates, warp=warp_in)
         loss = F.mse_loss(eps, noise)
         opt.zero_grad(set_to_none=True)
         loss.backward()

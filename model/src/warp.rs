@@ -1,0 +1,192 @@
+//! The depth warp a geometry model is conditioned on: a stored frame, with
+//! its depth, splatted into the target camera. The trainer has the same warp
+//! (`model/python/worldpack_model/warp.py`); the parity test checks the two
+//! against the cases the export wrote. Float64 throughout, computed in the
+//! same order as the trainer, so both round the same way.
+
+use glam::{DMat3, DVec3};
+use memory::{Intrinsics, Pose};
+
+use crate::error::ModelError;
+
+/// Depth maps hold millimetres along the optical axis; 0 where nothing lies within range.
+pub const DEPTH_UNIT_M: f64 = 1e-3;
+/// The z-buffer key of a direction at infinity (plus its pixel index): behind every surface.
+const SKY_KEY: f64 = 1e12;
+
+/// A stored frame a warp is made from.
+#[derive(Clone, Copy, Debug)]
+pub struct WarpSource<'a> {
+    /// Row-major RGB, 3 bytes a pixel, at the intrinsics' size.
+    pub rgb: &'a [u8],
+    /// Millimetres, one per pixel; 0 = nothing within range (sky).
+    pub depth_mm: &'a [u16],
+    pub pose: &'a Pose,
+    pub intrinsics: &'a Intrinsics,
+}
+
+/// A warped frame: RGB (0 in holes) and which pixels something landed on.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Warped {
+    pub rgb: Vec<u8>,
+    pub mask: Vec<bool>,
+}
+
+impl Warped {
+    /// The share of pixels the warp covers.
+    pub fn coverage(&self) -> f64 {
+        self.mask.iter().filter(|&&m| m).count() as f64 / self.mask.len().max(1) as f64
+    }
+}
+
+/// `src` as the camera at `dst` would see it. Each source pixel lands on the
+/// target pixel nearest its projection (`floor(x + 0.5)`) behind a z-buffer;
+/// ties go to the earlier pixel in row-major order. A pixel with depth 0 is
+/// warped as a direction at infinity (rotation only) and loses to every
+/// surface. Pixels nothing lands on are holes.
+pub fn forward_warp(src: &WarpSource, dst: &Pose) -> Result<Warped, ModelError> {
+    let k = src.intrinsics;
+    let (w, h) = (k.width as usize, k.height as usize);
+    if src.rgb.len() != w * h * 3 {
+        return Err(ModelError::input("warp.rgb", format!("{} bytes for a {w}x{h} RGB frame", src.rgb.len())));
+    }
+    if src.depth_mm.len() != w * h {
+        return Err(ModelError::input("warp.depth", format!("{} values for a {w}x{h} depth map", src.depth_mm.len())));
+    }
+    let (rs, ts) = (src.pose.rotation(), src.pose.position());
+    let (rd_t, td) = (dst.rotation().transpose(), dst.position());
+    let mut key = vec![f64::INFINITY; w * h];
+    let mut out = Warped { rgb: vec![0; w * h * 3], mask: vec![false; w * h] };
+    for v in 0..h {
+        for u in 0..w {
+            let i = v * w + u;
+            let ray = DVec3::new((u as f64 - k.cx) / k.fx, (v as f64 - k.cy) / k.fy, 1.0);
+            let turned = mul(&rs, ray);
+            let sky = src.depth_mm[i] == 0;
+            let q = if sky {
+                mul(&rd_t, turned)
+            } else {
+                let world = turned * (src.depth_mm[i] as f64 * DEPTH_UNIT_M) + ts;
+                mul(&rd_t, world - td)
+            };
+            let ahead = if sky { q.z > 1e-9 } else { q.z > k.near };
+            if !ahead {
+                continue;
+            }
+            let x = (k.fx * q.x / q.z + k.cx + 0.5).floor();
+            let y = (k.fy * q.y / q.z + k.cy + 0.5).floor();
+            if x < 0.0 || y < 0.0 || x >= w as f64 || y >= h as f64 {
+                continue;
+            }
+            let j = y as usize * w + x as usize;
+            let depth_key = if sky { SKY_KEY + i as f64 } else { q.z };
+            if depth_key < key[j] {
+                key[j] = depth_key;
+                out.rgb[3 * j..3 * j + 3].copy_from_slice(&src.rgb[3 * i..3 * i + 3]);
+                out.mask[j] = true;
+            }
+        }
+    }
+    Ok(out)
+}
+
+/// `m · v` summed left to right, as the trainer's einsum does.
+fn mul(m: &DMat3, v: DVec3) -> DVec3 {
+    let r = |i: usize| m.col(0)[i] * v.x + m.col(1)[i] * v.y + m.col(2)[i] * v.z;
+    DVec3::new(r(0), r(1), r(2))
+}
+
+/// The image the encoder sees, (3, H, W) planar in [-1, 1] with holes 0.
+pub fn warped_image(warped: &Warped) -> Vec<f32> {
+    let n = warped.mask.len();
+    let mut out = vec![0.0f32; 3 * n];
+    for (p, &m) in warped.mask.iter().enumerate() {
+        if m {
+            for c in 0..3 {
+                out[c * n + p] = warped.rgb[3 * p + c] as f32 / 127.5 - 1.0;
+            }
+        }
+    }
+    out
+}
+
+/// The mask's share per `factor`×`factor` cell, (H/f, W/f) row-major.
+pub fn coverage_grid(mask: &[bool], width: usize, height: usize, factor: usize) -> Vec<f32> {
+    let (gw, gh) = (width / factor, height / factor);
+    let mut out = vec![0.0f32; gw * gh];
+    for y in 0..gh * factor {
+        for x in 0..gw * factor {
+            if mask[y * width + x] {
+                out[(y / factor) * gw + x / factor] += 1.0;
+            }
+        }
+    }
+    let cell = (factor * factor) as f32;
+    out.iter_mut().for_each(|v| *v /= cell);
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn camera() -> Intrinsics {
+        Intrinsics::from_fov(70.0, Some(70.0), 32, 32).unwrap()
+    }
+
+    /// A textured wall 5 m ahead, with sky above its top quarter.
+    fn wall() -> (Vec<u8>, Vec<u16>) {
+        let rgb = (0..32 * 32).flat_map(|i| [(i % 32 * 8) as u8, (i / 32 * 8) as u8, 77]).collect();
+        let depth = (0..32 * 32).map(|i| if i / 32 < 8 { 0 } else { 5000 }).collect();
+        (rgb, depth)
+    }
+
+    #[test]
+    fn same_pose_is_the_identity_and_covers_everything() {
+        let (rgb, depth) = wall();
+        let k = camera();
+        let pose = Pose::from_position(DVec3::ZERO);
+        let src = WarpSource { rgb: &rgb, depth_mm: &depth, pose: &pose, intrinsics: &k };
+        let out = forward_warp(&src, &pose).unwrap();
+        assert_eq!(out.rgb, rgb);
+        assert_eq!(out.coverage(), 1.0);
+    }
+
+    #[test]
+    fn stepping_back_opens_holes_and_sideways_shifts_by_the_parallax() {
+        let (rgb, depth) = wall();
+        let k = camera();
+        let src_pose = Pose::from_position(DVec3::ZERO);
+        let src = WarpSource { rgb: &rgb, depth_mm: &depth, pose: &src_pose, intrinsics: &k };
+        // 1 m to the right: the wall (5 m) moves fx/5 pixels left; the sky does not move.
+        let right = Pose::from_position(DVec3::new(1.0, 0.0, 0.0));
+        let out = forward_warp(&src, &right).unwrap();
+        let shift = (k.fx / 5.0).round() as usize;
+        let row = 20 * 32;
+        assert_eq!(out.rgb[3 * (row + 10)], rgb[3 * (row + 10 + shift)]);
+        assert_eq!(out.rgb[3 * (2 * 32 + 10)], rgb[3 * (2 * 32 + 10)], "sky is at infinity");
+        assert!(!out.mask[row + 31], "the right edge was never seen");
+        // Moving forward magnifies the wall: splatting leaves cracks, never out-of-range pixels.
+        let ahead = Pose::from_position(DVec3::new(0.0, 0.0, 2.0));
+        let near = forward_warp(&src, &ahead).unwrap();
+        assert!(near.coverage() < 0.9 && near.coverage() > 0.2, "coverage {}", near.coverage());
+    }
+
+    #[test]
+    fn a_wrong_sized_source_is_refused_by_field() {
+        let (rgb, depth) = wall();
+        let k = camera();
+        let pose = Pose::from_position(DVec3::ZERO);
+        let src = WarpSource { rgb: &rgb[..30], depth_mm: &depth, pose: &pose, intrinsics: &k };
+        assert!(forward_warp(&src, &pose).unwrap_err().to_string().contains("warp.rgb"));
+    }
+
+    #[test]
+    fn coverage_pools_cells() {
+        let mut mask = vec![false; 16];
+        mask[0] = true;
+        mask[1] = true;
+        mask[15] = true;
+        assert_eq!(coverage_grid(&mask, 4, 4, 2), vec![0.5, 0.0, 0.0, 0.25]);
+    }
+}
