@@ -14,7 +14,7 @@ use model::{Model, Sampler};
 use world::World;
 use motion::Action;
 use world::agent::PlayerState;
-use world::picture::encode_png;
+use world::picture::{encode_depth_png16, encode_png};
 use world::render::{RenderSettings, render};
 
 use crate::error::ApiError;
@@ -36,7 +36,10 @@ pub struct StepOutcome {
     pub plan: ContextPlan,
     pub layout: String,
     pub exact_evaluations: usize,
-    pub timings_ms: [f64; 4], // select, sample, decode, store
+    pub timings_ms: [f64; 5], // select, warp, sample, decode, store
+    /// The observed frame a geometry model warped into the new view (`None`
+    /// for other models, or when no frame with depth sees it).
+    pub warp_frame: Option<u64>,
     /// In a synthetic session: how close the frame is to what the world shows there.
     pub truth: Option<TruthScore>,
 }
@@ -91,7 +94,14 @@ impl Engine {
         let player = PlayerState::at_cell(cell, 0.0);
         let frame = render(&world, &player.camera(), &k, &RenderSettings::default());
         let latent = self.latent_of(&frame.rgb, k.width, k.height, &k, "synthetic")?;
-        let first = FrameRecord { meta: meta(&player.camera(), 0, OBSERVED, None, Some(&player)), latent, png: encode_png(k.width, k.height, &frame.rgb), depth_png16: Vec::new() };
+        // The world's depth comes with the first frame, as a depth camera's would.
+        let depth: Vec<u16> = frame.depth.iter().map(|&d| world::suite::depth_to_mm(d)).collect();
+        let first = FrameRecord {
+            meta: meta(&player.camera(), 0, OBSERVED, None, Some(&player)),
+            latent,
+            png: encode_png(k.width, k.height, &frame.rgb),
+            depth_png16: encode_depth_png16(k.width, k.height, &depth),
+        };
         self.create(SessionRecord { policy, intrinsics: k, world_seed: Some(seed) }, vec![first], Some(world))
     }
 
@@ -120,7 +130,16 @@ impl Engine {
         let (plan, stats) = s.memory.select(&s.policy, &frustum, s.last_plan.as_ref());
         let select_ms = ms(t0);
         let action_values = action.to_vector().map(|v| v as f32);
-        let request = model::Request { plan: &plan, target_time: time, target_pose: &pose, action: &action_values, seed: seed.unwrap_or(time), warp: None };
+        let warp = if m.manifest().denoiser.warp.is_some() { s.warp_source(&frustum) } else { None };
+        let request = model::Request {
+            plan: &plan,
+            target_time: time,
+            target_pose: &pose,
+            action: &action_values,
+            seed: seed.unwrap_or(time),
+            warp: warp.map(|(_, w)| w),
+        };
+        let warp_frame = warp.map(|(i, _)| i);
         let frames = &s.frames;
         let lookup = |_: usize, id: u64| frames.get(id as usize).map(|f| ContextFrame { latent: &f.latent, time: f.time, pose: &f.pose, generated: f.generated });
         let mut prediction = m.predict(&s.policy.packing, &[request], &lookup, sampler)?;
@@ -148,7 +167,8 @@ impl Engine {
             plan,
             layout: prediction.layout,
             exact_evaluations: stats.overlap_evaluations,
-            timings_ms: [select_ms, prediction.sample_ms, decode_ms, store_ms],
+            timings_ms: [select_ms, prediction.warp_ms, prediction.sample_ms, decode_ms, store_ms],
+            warp_frame,
             truth,
         })
     }
@@ -169,9 +189,13 @@ impl Engine {
         s.frustum(pose)?;
         let time = s.next_time();
         let index = s.frames.len() as u64;
+        let depth = if depth_png16.is_empty() { None } else { Some(world::picture::decode_depth_png16(&depth_png16).map_err(|e| ApiError::bad("depth_png16", e))?.0) };
         let record = FrameRecord { meta: meta(&pose, time, OBSERVED, action, None), latent, png: encode_png(w, h, rgb), depth_png16 };
         self.store.put_frame(s.id, index, &record)?;
         s.push(time, pose, record.latent, None, false)?;
+        if let Some(depth) = depth {
+            s.add_depth(index, rgb.to_vec(), w, h, depth)?;
+        }
         Ok((index, time))
     }
 }

@@ -385,7 +385,7 @@ pub async fn step(State(st): St, id: Result<Path<u64>, PathRejection>, headers: 
     let out = blocking(move || {
         let pose = req.pose.as_ref().map(|p| pose_from(p, "pose")).transpose()?;
         let o = st2.engine.step(&mut s, &req.action, pose, &sampler, req.seed)?;
-        let [select, sample, decode, store] = o.timings_ms;
+        let [select, warp, sample, decode, store] = o.timings_ms;
         Ok(StepAnswer {
             session: s.id,
             index: o.index,
@@ -395,8 +395,8 @@ pub async fn step(State(st): St, id: Result<Path<u64>, PathRejection>, headers: 
             image_png: B64.encode(&o.png),
             steps: sampler.len(),
             provider: st2.engine.model.as_ref().map(|m| m.provider().to_string()),
-            selection: Selection { plan: PlanAnswer::of(&s.policy, &o.plan), layout: o.layout, exact_evaluations: o.exact_evaluations },
-            timings_ms: StepTimings { select, sample, decode, store, total: 0.0 },
+            selection: Selection { plan: PlanAnswer::of(&s.policy, &o.plan), layout: o.layout, exact_evaluations: o.exact_evaluations, warp_frame: o.warp_frame },
+            timings_ms: StepTimings { select, warp, sample, decode, store, total: 0.0 },
             truth: o.truth.map(|t| TruthAnswer { psnr_db: t.psnr_db, ssim: t.ssim, image: format!("/v1/sessions/{}/frames/{}/truth", s.id, o.index) }),
         })
     })
@@ -432,13 +432,9 @@ pub struct ObserveRequest {
 fn depth_png(b64: &str, w: u32, h: u32) -> Res<Vec<u8>> {
     let field = "depth_png16";
     let bytes = B64.decode(b64.trim()).map_err(|e| ApiError::bad(field, format!("not base64: {e}")))?;
-    let reader = png::Decoder::new(std::io::Cursor::new(&bytes)).read_info().map_err(|e| ApiError::bad(field, format!("not a PNG: {e}")))?;
-    let info = reader.info();
-    if info.color_type != png::ColorType::Grayscale || info.bit_depth != png::BitDepth::Sixteen {
-        return Err(ApiError::bad(field, format!("must be 16-bit grayscale (millimetres), got {:?} {:?}", info.color_type, info.bit_depth)));
-    }
-    if (info.width, info.height) != (w, h) {
-        return Err(ApiError::bad(field, format!("is {}x{}, the image is {w}x{h}", info.width, info.height)));
+    let (_, dw, dh) = world::picture::decode_depth_png16(&bytes).map_err(|e| ApiError::bad(field, e))?;
+    if (dw, dh) != (w, h) {
+        return Err(ApiError::bad(field, format!("is {dw}x{dh}, the image is {w}x{h}")));
     }
     Ok(bytes)
 }
@@ -711,11 +707,16 @@ pub struct Selection {
     pub layout: String,
     /// Exact frustum-overlap evaluations the selection needed.
     pub exact_evaluations: usize,
+    /// The observed frame with depth a geometry model warped into the new
+    /// view (null for other models, or when no frame with depth sees it).
+    pub warp_frame: Option<u64>,
 }
 
 #[derive(Serialize, ToSchema)]
 pub struct StepTimings {
     pub select: f64,
+    /// Warping and encoding a geometry model's warp input (0 for other models).
+    pub warp: f64,
     pub sample: f64,
     pub decode: f64,
     pub store: f64,

@@ -1,9 +1,11 @@
 //! A live session: its policy, the indexed frame memory, every frame's pose
 //! and latent, and (in the synthetic world) the player for the motion model.
 
+use std::collections::HashMap;
 use std::sync::Arc;
 
 use memory::{ContextPlan, FrameMemory, Frustum, Intrinsics, MemoryFrame, Policy, PolicySpec, Pose};
+use model::WarpSource;
 use world::World;
 use motion::{Action, Kinematic, MotionModel};
 use world::agent::PlayerState;
@@ -20,6 +22,12 @@ pub struct Frame {
     pub generated: bool,
 }
 
+/// An observed frame that came with depth, at the session's camera size.
+pub struct DepthFrame {
+    pub rgb: Vec<u8>,
+    pub depth_mm: Vec<u16>,
+}
+
 pub struct Session {
     pub id: u64,
     pub record: SessionRecord,
@@ -30,6 +38,10 @@ pub struct Session {
     pub world: Option<Arc<World>>,
     /// Set by a delete; requests that were queued on the session see it and answer 404.
     pub deleted: bool,
+    /// The observed frames with depth, indexed apart: a geometry model warps
+    /// the one of them that overlaps the target view most.
+    pub depth_memory: FrameMemory,
+    pub depth_frames: HashMap<u64, DepthFrame>,
 }
 
 /// A stored frame's `source` when a step made it (else `observed`).
@@ -50,10 +62,27 @@ impl Session {
     /// Rebuilds a session from its stored record and frames (server start).
     pub fn restore(id: u64, record: SessionRecord, frames: Vec<FrameRecord>, world: Option<Arc<World>>) -> Result<Session, ApiError> {
         let policy = policy_of(&record.policy)?;
-        let mut s = Session { id, record, policy, memory: FrameMemory::new(), frames: Vec::new(), last_plan: None, world, deleted: false };
-        for f in frames {
+        let mut s = Session {
+            id,
+            record,
+            policy,
+            memory: FrameMemory::new(),
+            frames: Vec::new(),
+            last_plan: None,
+            world,
+            deleted: false,
+            depth_memory: FrameMemory::new(),
+            depth_frames: HashMap::new(),
+        };
+        for (index, f) in frames.into_iter().enumerate() {
             let generated = f.meta.source == GENERATED;
             s.push(f.meta.time, pose_of(&f.meta)?, f.latent, f.meta.player.map(player_from), generated)?;
+            if !f.depth_png16.is_empty() {
+                // Both were checked when they arrived; a stored frame that no longer decodes is the store's fault.
+                let (rgb, w, h) = world::picture::decode_rgb(&f.png).map_err(ApiError::internal)?;
+                let (depth, _, _) = world::picture::decode_depth_png16(&f.depth_png16).map_err(ApiError::internal)?;
+                s.add_depth(index as u64, rgb, w, h, depth)?;
+            }
         }
         Ok(s)
     }
@@ -72,6 +101,29 @@ impl Session {
         self.memory.insert(MemoryFrame { id: self.frames.len() as u64, time, frustum })?;
         self.frames.push(Frame { pose, time, latent, player, generated });
         Ok(())
+    }
+
+    /// Indexes frame `index`'s depth as a warp source. Frames not at the
+    /// session's camera size are left out (the warp needs its intrinsics).
+    pub fn add_depth(&mut self, index: u64, rgb: Vec<u8>, width: u32, height: u32, depth_mm: Vec<u16>) -> Result<(), ApiError> {
+        let k = self.record.intrinsics;
+        if (width, height) != (k.width, k.height) {
+            return Ok(());
+        }
+        let f = self.frames.get(index as usize).ok_or_else(|| ApiError::internal(format!("depth for frame {index}, which is not indexed")))?;
+        let frustum = self.frustum(f.pose)?;
+        self.depth_memory.insert(MemoryFrame { id: index, time: f.time, frustum })?;
+        self.depth_frames.insert(index, DepthFrame { rgb, depth_mm });
+        Ok(())
+    }
+
+    /// The observed frame with depth that overlaps `target` most, ready to
+    /// warp, with its index; `None` when no frame with depth sees it.
+    pub fn warp_source(&self, target: &Frustum) -> Option<(u64, WarpSource<'_>)> {
+        let (plan, _) = self.depth_memory.select(&Policy::best_overlap(), target, None);
+        let id = plan.selected().next()?.1.id;
+        let d = self.depth_frames.get(&id)?;
+        Some((id, WarpSource { rgb: &d.rgb, depth_mm: &d.depth_mm, pose: &self.frames[id as usize].pose, intrinsics: self.intrinsics() }))
     }
 
     pub fn next_time(&self) -> u64 {

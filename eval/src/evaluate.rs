@@ -88,6 +88,7 @@ pub fn row_label(name: &str) -> String {
     match name {
         "copy" => "copy best-overlap observed frame".into(),
         "reproject" => "reproject it with depth".into(),
+        "reproject_fused" => format!("reproject the {} best frames, fused", crate::probe::FUSED_FRAMES),
         _ => memory::variant(name).map_or_else(|_| name.to_string(), |v| v.label.to_string()),
     }
 }
@@ -112,6 +113,9 @@ struct RowKey {
     /// The per-frame scores a row carries (rows saved before the sharpness ratio lack it, and are recomputed).
     #[serde(default)]
     scores: String,
+    /// How a non-learned row makes its frames (`probe::REFERENCE_RULES`; rows saved under an older rule are recomputed).
+    #[serde(default)]
+    reference: Option<String>,
     feature_networks: [Option<String>; 3],
 }
 
@@ -230,6 +234,7 @@ pub fn evaluate(s: &Settings, progress: &dyn Fn(Progress)) -> Result<Evaluation,
     if s.references {
         rows.push((Row { name: "copy".into(), predictor: Predictor::Copy }, None));
         rows.push((Row { name: "reproject".into(), predictor: Predictor::Reproject }, None));
+        rows.push((Row { name: "reproject_fused".into(), predictor: Predictor::ReprojectFused }, None));
     }
     let against = s.against.clone().unwrap_or_else(|| rows[0].0.name.clone());
     for (field, name) in std::iter::once(("--against", &against)).chain(s.strip.iter().map(|n| ("--strip", n))) {
@@ -257,6 +262,7 @@ pub fn evaluate(s: &Settings, progress: &dyn Fn(Progress)) -> Result<Evaluation,
             generated_level: s.generated_level,
             noise_seeding: "per frame".into(),
             scores: SCORES.into(),
+            reference: m.is_none().then(|| crate::probe::REFERENCE_RULES.to_string()),
             feature_networks: networks.clone(),
         };
         let path = rows_dir.join(format!("{}.json", row.name));

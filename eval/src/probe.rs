@@ -5,14 +5,14 @@
 
 use std::time::Instant;
 
-use memory::{ContextPlan, Estimator, FrameMemory, MemoryFrame, Packing, Policy, PolicyKind, Query, Ranking, ScoreWeights};
+use memory::{ContextPlan, FrameMemory, MemoryFrame, Packing, Policy};
 use model::generate::frame_to_tensor;
 use model::pack::ContextFrame;
 use model::{Model, ModelError, Request, Sampler, Tensor, WarpSource};
 use serde::Serialize;
 
 use crate::metrics::{psnr, sharpness_ratio, ssim};
-use crate::reproject::reproject;
+use crate::reproject::{reproject, reproject_fused};
 use crate::suite::{SuiteError, Trajectory};
 
 #[derive(Debug, thiserror::Error)]
@@ -34,25 +34,31 @@ pub enum Predictor<'a> {
     Copy,
     /// That frame warped into the target pose with its depth.
     Reproject,
+    /// The [`FUSED_FRAMES`] frames of largest overlap warped behind one
+    /// z-buffer, cracks filled from their neighbours.
+    ReprojectFused,
+}
+
+/// Frames the fused reference warps together.
+pub const FUSED_FRAMES: usize = 3;
+
+/// How the non-learned rows make a frame; a saved reference row made by another rule is recomputed.
+pub const REFERENCE_RULES: &str = "model::warp (depth 0 at infinity); holes keep the best frame's pixel; fused: 3 frames, 2 fill rounds";
+
+impl Predictor<'_> {
+    /// The memory policy a row selects with (references: the best-overlap frames).
+    pub fn policy(&self) -> Policy {
+        match self {
+            Predictor::Model { policy, .. } => policy.clone(),
+            Predictor::Copy | Predictor::Reproject => Policy::best_overlap(),
+            Predictor::ReprojectFused => Policy { packing: Packing::uncompressed(FUSED_FRAMES), ..Policy::best_overlap() },
+        }
+    }
 }
 
 pub struct Row<'a> {
     pub name: String,
     pub predictor: Predictor<'a>,
-}
-
-/// Only overlap counts when picking the frame to copy or warp.
-pub fn best_overlap_policy() -> Policy {
-    Policy {
-        kind: PolicyKind::MemoryRetrieval,
-        ranking: Ranking::Score,
-        packing: Packing::uncompressed(1),
-        estimator: Estimator::Exact,
-        weights: ScoreWeights { overlap: 1.0, recency: 0.0 },
-        keep_last: false,
-        // The references copy or warp toward the frame to predict.
-        query: Query::Target,
-    }
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, serde::Deserialize)]
@@ -102,13 +108,6 @@ pub struct Settings {
     pub seed: u64,
 }
 
-fn policy_of<'a>(row: &'a Row, copy: &'a Policy) -> &'a Policy {
-    match &row.predictor {
-        Predictor::Model { policy, .. } => policy,
-        Predictor::Copy | Predictor::Reproject => copy,
-    }
-}
-
 /// Each policy's plan for every target, from one pass over the trajectory.
 fn plans(traj: &Trajectory, policies: &[&Policy], targets: &[usize]) -> Result<Vec<Vec<ContextPlan>>, ProbeError> {
     let frusta = traj.frusta()?;
@@ -156,7 +155,7 @@ pub fn encode_all(m: &Model, traj: &Trajectory) -> Result<Vec<Vec<f32>>, ProbeEr
 }
 
 /// The stored frame a geometry model warps, and the non-learned references
-/// copy or warp: the first of a `best_overlap_policy` plan (the observed
+/// copy or warp: the first of a `Policy::best_overlap` plan (the observed
 /// frame that overlaps the target view most), with its depth.
 pub fn warp_source<'a>(traj: &'a Trajectory, plan: &ContextPlan) -> Option<WarpSource<'a>> {
     let s = plan.selected().next()?.1.id as usize;
@@ -169,6 +168,14 @@ pub fn reference_image(traj: &Trajectory, how: &Predictor, plan: &ContextPlan, t
     let src = plan.selected().next().map_or(t - 1, |(_, f)| f.id as usize);
     match how {
         Predictor::Reproject => reproject(traj.frame(src), traj.depth(src), &traj.intrinsics, &traj.poses[src], &traj.poses[t]).0,
+        Predictor::ReprojectFused => {
+            let ids: Vec<usize> = plan.selected().map(|(_, f)| f.id as usize).collect();
+            let sources: Vec<WarpSource> = if ids.is_empty() { vec![src] } else { ids }
+                .into_iter()
+                .map(|s| WarpSource { rgb: traj.frame(s), depth_mm: traj.depth(s), pose: &traj.poses[s], intrinsics: &traj.intrinsics })
+                .collect();
+            reproject_fused(&sources, &traj.poses[t]).0
+        }
         _ => traj.frame(src).to_vec(),
     }
 }
@@ -234,8 +241,8 @@ pub fn probe_trajectory(
 ) -> Result<TrajectoryScores, ProbeError> {
     let targets = traj.return_frames(settings.stride);
     // Each row's plans, then the best-overlap plans (geometry models' warp sources).
-    let copy = best_overlap_policy();
-    let policies: Vec<&Policy> = rows.iter().map(|r| policy_of(r, &copy)).chain([&copy]).collect();
+    let owned: Vec<Policy> = rows.iter().map(|r| r.predictor.policy()).chain([Policy::best_overlap()]).collect();
+    let policies: Vec<&Policy> = owned.iter().collect();
     let mut plans = plans(traj, &policies, &targets)?;
     let best_overlap = plans.pop().expect("the best-overlap plans");
     let (w, h) = (traj.intrinsics.width as usize, traj.intrinsics.height as usize);
@@ -262,7 +269,7 @@ pub fn probe_trajectory(
                     progress(1);
                 })?;
             }
-            Predictor::Copy | Predictor::Reproject => {
+            Predictor::Copy | Predictor::Reproject | Predictor::ReprojectFused => {
                 for (&t, plan) in targets.iter().zip(plans) {
                     out.push(score(t, &reference_image(traj, &row.predictor, plan, t)));
                     progress(1);
@@ -285,8 +292,8 @@ pub fn latency_ms(traj: &Trajectory, row: &Row, latents: &[Vec<f32>], calls: usi
     let all = traj.return_frames(1);
     let warm_up: Vec<usize> = all.iter().copied().take(WARM_UP_CALLS.min(all.len().saturating_sub(1))).collect();
     let targets: Vec<usize> = all.iter().copied().skip(warm_up.len()).take(calls.max(1)).collect();
-    let copy = best_overlap_policy();
-    let policy = policy_of(row, &copy);
+    let copy = Policy::best_overlap();
+    let policy = row.predictor.policy();
     let frusta = traj.frusta()?;
     let mut store = FrameMemory::new();
     let last = *targets.last().unwrap_or(&0);
@@ -296,7 +303,7 @@ pub fn latency_ms(traj: &Trajectory, row: &Row, latents: &[Vec<f32>], calls: usi
         let timed = targets.contains(&t);
         if timed || warm_up.contains(&t) {
             let start = Instant::now();
-            let (plan, _) = store.select(policy, &frusta[t], None);
+            let (plan, _) = store.select(&policy, &frusta[t], None);
             match &row.predictor {
                 Predictor::Model { model, policy, sampler } => {
                     // A geometry model's warp source is chosen within the timed call too.

@@ -4,12 +4,12 @@
 //! joining the memory that later frames select from. Trajectories run in
 //! lockstep so one denoiser call serves a whole batch of them.
 
-use memory::{ContextPlan, FrameMemory, Frustum, MemoryFrame};
+use memory::{ContextPlan, FrameMemory, Frustum, MemoryFrame, Policy};
 use model::pack::ContextFrame;
 use model::Request;
 
 use crate::features::{Embedding, FeatureError, Lpips, VideoFeatures, frechet_distance};
-use crate::probe::{FrameScore, Predictor, ProbeError, Row, best_overlap_policy, reference_image, warp_source};
+use crate::probe::{FrameScore, Predictor, ProbeError, Row, reference_image, warp_source};
 use crate::suite::Trajectory;
 
 /// The frames a rollout generates: the return leg, from the returning point,
@@ -112,14 +112,14 @@ pub fn rollout_as(
 ) -> Result<RowOutput, ProbeError> {
     assert_eq!(trajs.len(), suite_index.len(), "one suite index per trajectory");
     match &row.predictor {
-        Predictor::Copy | Predictor::Reproject => {
+        Predictor::Copy | Predictor::Reproject | Predictor::ReprojectFused => {
             let (scores, frames) = trajs.iter().map(|t| reference(t, &row.predictor, max_frames, scorer, progress)).collect::<Result<Vec<_>, _>>()?.into_iter().unzip();
             Ok(RowOutput { scores, frames })
         }
         Predictor::Model { model, policy, sampler } => {
             model.layout_for(&policy.packing)?; // before any work: a policy the model cannot take fails at once
             let warps = model.manifest().denoiser.warp.is_some();
-            let best_overlap = best_overlap_policy();
+            let best_overlap = Policy::best_overlap();
             let mut runs = trajs
                 .iter()
                 .zip(observed_latents)
@@ -213,7 +213,7 @@ fn reference(
     let range = rollout_frames(traj, max_frames);
     let frusta = traj.frusta()?;
     let store = observed(&frusta, range.start)?;
-    let policy = best_overlap_policy();
+    let policy = how.policy();
     let mut out = Vec::with_capacity(range.len());
     let mut frames = Vec::new();
     for t in range {

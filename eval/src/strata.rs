@@ -5,10 +5,9 @@
 //! far back in time. Every feature comes from the true poses and depth.
 
 use glam::{DVec2, DVec3};
-use memory::{FrameMemory, MemoryFrame};
+use memory::{FrameMemory, MemoryFrame, Policy};
 use serde::Serialize;
 
-use crate::probe::best_overlap_policy;
 use crate::reproject::DEPTH_UNIT_M;
 use crate::suite::{RETURN_PHASE, SuiteError, Trajectory};
 
@@ -161,7 +160,7 @@ pub fn occluded_share(traj: &Trajectory, src: usize, points: &[DVec3]) -> Option
 /// The features of each of `targets` (increasing frame indices).
 pub fn features(traj: &Trajectory, targets: &[usize]) -> Result<Vec<TargetFeatures>, SuiteError> {
     let frusta = traj.frusta()?;
-    let best = best_overlap_policy();
+    let best = Policy::best_overlap();
     let mut store = FrameMemory::new();
     let mut out = Vec::with_capacity(targets.len());
     let mut next = targets.iter().peekable();

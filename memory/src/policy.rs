@@ -206,6 +206,20 @@ impl Policy {
         Policy { kind, ranking, packing, estimator, weights: ScoreWeights::default(), keep_last: false, query }
     }
 
+    /// Only overlap with the target view counts, one frame: the frame the
+    /// non-learned references copy or warp, and a geometry model's warp source.
+    pub fn best_overlap() -> Policy {
+        Policy {
+            kind: PolicyKind::MemoryRetrieval,
+            ranking: Ranking::Score,
+            packing: Packing::uncompressed(1),
+            estimator: Estimator::Exact,
+            weights: ScoreWeights { overlap: 1.0, recency: 0.0 },
+            keep_last: false,
+            query: Query::Target,
+        }
+    }
+
     /// The view to score against: `target`, or the newest stored frame's
     /// frustum for [`Query::Current`] (the target when nothing is stored).
     pub fn query_view<'a>(&self, target: &'a Frustum, newest: Option<&'a Frustum>) -> &'a Frustum {

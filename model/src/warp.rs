@@ -45,6 +45,28 @@ impl Warped {
 /// warped as a direction at infinity (rotation only) and loses to every
 /// surface. Pixels nothing lands on are holes.
 pub fn forward_warp(src: &WarpSource, dst: &Pose) -> Result<Warped, ModelError> {
+    forward_warp_many(std::slice::from_ref(src), dst)
+}
+
+/// Several frames warped into `dst` behind one z-buffer (ties go to the
+/// earlier frame); every source must share the first one's image size.
+pub fn forward_warp_many(sources: &[WarpSource], dst: &Pose) -> Result<Warped, ModelError> {
+    let Some(first) = sources.first() else { return Err(ModelError::input("warp", "no frame to warp")) };
+    let (w, h) = (first.intrinsics.width as usize, first.intrinsics.height as usize);
+    let mut key = vec![f64::INFINITY; w * h];
+    let mut out = Warped { rgb: vec![0; w * h * 3], mask: vec![false; w * h] };
+    for src in sources {
+        let k = src.intrinsics;
+        if (k.width as usize, k.height as usize) != (w, h) {
+            return Err(ModelError::input("warp.intrinsics", format!("frames of {}x{} and {w}x{h} in one warp", k.width, k.height)));
+        }
+        splat(src, dst, &mut key, &mut out)?;
+    }
+    Ok(out)
+}
+
+/// One source into the shared z-buffer `key` and image `out`.
+fn splat(src: &WarpSource, dst: &Pose, key: &mut [f64], out: &mut Warped) -> Result<(), ModelError> {
     let k = src.intrinsics;
     let (w, h) = (k.width as usize, k.height as usize);
     if src.rgb.len() != w * h * 3 {
@@ -55,8 +77,6 @@ pub fn forward_warp(src: &WarpSource, dst: &Pose) -> Result<Warped, ModelError> 
     }
     let (rs, ts) = (src.pose.rotation(), src.pose.position());
     let (rd_t, td) = (dst.rotation().transpose(), dst.position());
-    let mut key = vec![f64::INFINITY; w * h];
-    let mut out = Warped { rgb: vec![0; w * h * 3], mask: vec![false; w * h] };
     for v in 0..h {
         for u in 0..w {
             let i = v * w + u;
@@ -87,7 +107,7 @@ pub fn forward_warp(src: &WarpSource, dst: &Pose) -> Result<Warped, ModelError> 
             }
         }
     }
-    Ok(out)
+    Ok(())
 }
 
 /// `m · v` summed left to right, as the trainer's einsum does.

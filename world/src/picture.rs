@@ -44,6 +44,31 @@ pub fn decode_rgb(bytes: &[u8]) -> Result<(Vec<u8>, u32, u32), String> {
     Ok((rgb, info.width, info.height))
 }
 
+/// Depth in millimetres (0 = nothing within range) as a 16-bit grayscale PNG.
+pub fn encode_depth_png16(width: u32, height: u32, depth_mm: &[u16]) -> Vec<u8> {
+    assert_eq!(depth_mm.len(), (width * height) as usize, "encode_depth_png16: not a depth map of the given size");
+    let mut out = Vec::new();
+    let mut encoder = png::Encoder::new(&mut out, width, height);
+    encoder.set_color(png::ColorType::Grayscale);
+    encoder.set_depth(png::BitDepth::Sixteen);
+    let bytes: Vec<u8> = depth_mm.iter().flat_map(|d| d.to_be_bytes()).collect(); // PNG samples are big-endian
+    encoder.write_header().and_then(|mut w| w.write_image_data(&bytes)).expect("encoding a PNG into memory");
+    out
+}
+
+/// A 16-bit grayscale PNG's samples (millimetres), with its width and height.
+pub fn decode_depth_png16(bytes: &[u8]) -> Result<(Vec<u16>, u32, u32), String> {
+    let mut reader = png::Decoder::new(std::io::Cursor::new(bytes)).read_info().map_err(|e| format!("not a PNG: {e}"))?;
+    let info = reader.info();
+    if info.color_type != png::ColorType::Grayscale || info.bit_depth != png::BitDepth::Sixteen {
+        return Err(format!("must be 16-bit grayscale (millimetres), got {:?} {:?}", info.color_type, info.bit_depth));
+    }
+    let mut buf = vec![0; reader.output_buffer_size()];
+    let info = reader.next_frame(&mut buf).map_err(|e| format!("broken PNG: {e}"))?;
+    let px = (info.width * info.height) as usize;
+    Ok((buf[..px * 2].chunks_exact(2).map(|b| u16::from_be_bytes([b[0], b[1]])).collect(), info.width, info.height))
+}
+
 /// Depth as colour: near is bright yellow, far is deep violet, sky black.
 /// `max_depth` maps to the far end of the ramp.
 pub fn depth_to_rgb(depth: &[f32], max_depth: f32) -> Vec<u8> {
@@ -128,5 +153,19 @@ fn line(img: &mut [u8], w: u32, h: u32, a: (i64, i64), b: (i64, i64), c: [u8; 3]
         for (dx, dy) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
             put(img, w, h, x + dx, y + dy, c);
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn depth_pngs_round_trip_and_refuse_colour() {
+        let depth: Vec<u16> = (0..12).map(|i| i * 5000 + 1).collect();
+        let (back, w, h) = decode_depth_png16(&encode_depth_png16(4, 3, &depth)).unwrap();
+        assert_eq!((back, w, h), (depth, 4, 3));
+        let err = decode_depth_png16(&encode_png(2, 2, &[0; 12])).unwrap_err();
+        assert!(err.contains("16-bit grayscale"), "{err}");
     }
 }
