@@ -11,6 +11,11 @@ at its pose; the script keeps them, fetches frames for a picture, and writes:
   <out>.png    the PSNR curves, phases marked
   <out>-strip.png  every 4th frame of the way back: truth, then each row
 
+With --observe-outbound the look-around and the way out are observing steps
+(`"observe": true`: the world's true frame and depth are recorded, as a
+robot's camera would), and only the turn and the way back are generated: the
+LoopNav protocol through the API, where a geometry model can warp what was seen.
+
     .venv/bin/python scripts/rest_walk.py --out docs/results/rest_walk \\
         --row worldpack=fixtures/variants/worldpack:worldpack --row baseline=fixtures/variants/baseline:baseline
 
@@ -66,7 +71,10 @@ def png_to_rgb(png: bytes) -> np.ndarray:
     return cv2.cvtColor(cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
 
 
-def run_row(binary: str, model: str, policy: str, seed: int, steps: int, method: str) -> dict:
+OBSERVABLE = ("look around", "out")
+
+
+def run_row(binary: str, model: str, policy: str, seed: int, steps: int, method: str, observe_outbound: bool = False) -> dict:
     port = free_port()
     with tempfile.TemporaryDirectory() as tmp:
         server = subprocess.Popen([binary, "serve", "--model", model, "--store", f"{tmp}/walk.redb", "--addr", f"127.0.0.1:{port}",
@@ -85,9 +93,11 @@ def run_row(binary: str, model: str, policy: str, seed: int, steps: int, method:
             session = call(f"{base}/v1/sessions", {"synthetic": {"seed": seed}})["session"]
             rows = []
             for phase, action in walk():
-                r = call(f"{base}/v1/sessions/{session}/step", {"action": action, "seed": len(rows) + 1})
-                truth = r["truth"]
-                rows.append({"index": r["index"], "phase": phase, "psnr_db": truth["psnr_db"], "ssim": truth["ssim"]})
+                observe = observe_outbound and phase in OBSERVABLE
+                r = call(f"{base}/v1/sessions/{session}/step", {"action": action, "seed": len(rows) + 1, "observe": observe})
+                truth = r["truth"] or {"psnr_db": None, "ssim": None}  # an observed frame is the truth
+                rows.append({"index": r["index"], "phase": phase, "psnr_db": truth["psnr_db"], "ssim": truth["ssim"],
+                             "warp_frames": r["selection"]["warp_frames"]})
             back = [r["index"] for r in rows if r["phase"] == "back"][::4]
             frames = {i: png_to_rgb(call(f"{base}/v1/sessions/{session}/frames/{i}/image")) for i in back}
             truths = {i: png_to_rgb(call(f"{base}/v1/sessions/{session}/frames/{i}/truth")) for i in back}
@@ -101,7 +111,7 @@ def curve(results: dict, path: Path) -> None:
     w, h, pad = 720, 320, 40
     img = np.full((h, w, 3), 255, np.uint8)
     n = len(next(iter(results.values()))["steps"])
-    values = [s["psnr_db"] for r in results.values() for s in r["steps"]]
+    values = [s["psnr_db"] for r in results.values() for s in r["steps"] if s["psnr_db"] is not None]
     lo, hi = np.floor(min(values)) - 1, np.ceil(max(values)) + 1
     x = lambda i: int(pad + (w - 2 * pad) * i / max(n - 1, 1))
     y = lambda v: int(h - 2 * pad - (h - 3 * pad) * (v - lo) / (hi - lo))
@@ -115,8 +125,9 @@ def curve(results: dict, path: Path) -> None:
     colours = [(31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40)]
     for k, (name, r) in enumerate(results.items()):
         c = colours[k % len(colours)][::-1]
-        pts = np.array([(x(i), y(s["psnr_db"])) for i, s in enumerate(r["steps"])], np.int32)
-        cv2.polylines(img, [pts], False, c, 2, cv2.LINE_AA)
+        pts = np.array([(x(i), y(s["psnr_db"])) for i, s in enumerate(r["steps"]) if s["psnr_db"] is not None], np.int32)
+        if len(pts):
+            cv2.polylines(img, [pts], False, c, 2, cv2.LINE_AA)
         # Legend along the bottom, below the curves.
         cv2.line(img, (pad + 170 * k, h - 28), (pad + 170 * k + 20, h - 28), c, 3)
         cv2.putText(img, name, (pad + 170 * k + 25, h - 24), cv2.FONT_HERSHEY_SIMPLEX, 0.4, c, 1, cv2.LINE_AA)
@@ -146,6 +157,8 @@ def main() -> None:
     ap.add_argument("--steps", type=int, default=10, help="sampler steps per frame")
     ap.add_argument("--method", default="ddim")
     ap.add_argument("--out", type=Path, required=True, help="path prefix for .json, .png and -strip.png")
+    ap.add_argument("--observe-outbound", action="store_true",
+                    help="observe the look-around and the way out (the world's frames and depth); generate only the way back")
     a = ap.parse_args()
     results = {}
     for spec in a.row:
@@ -154,16 +167,18 @@ def main() -> None:
         if not (name and model and policy):
             sys.exit(f"--row {spec!r}: expected NAME=MODEL_FOLDER:POLICY")
         print(f"{name}: {model} with {policy}", flush=True)
-        results[name] = run_row(a.bin, model, policy, a.seed, a.steps, a.method)
+        results[name] = run_row(a.bin, model, policy, a.seed, a.steps, a.method, a.observe_outbound)
     a.out.parent.mkdir(parents=True, exist_ok=True)
     summary = {}
     for name, r in results.items():
         by_phase = {}
         for s in r["steps"]:
-            by_phase.setdefault(s["phase"], []).append(s["psnr_db"])
+            if s["psnr_db"] is not None:
+                by_phase.setdefault(s["phase"], []).append(s["psnr_db"])
         summary[name] = {p: round(float(np.mean(v)), 2) for p, v in by_phase.items()}
         print(f"{name:>12}: " + ", ".join(f"{p} {v:.2f} dB" for p, v in summary[name].items()))
     record = {"command": " ".join(sys.argv), "seed": a.seed, "sampler": f"{a.method}, {a.steps} steps",
+              "observe_outbound": a.observe_outbound,
               "mean_psnr_db_by_phase": summary,
               "rows": {n: {k: v for k, v in r.items() if k not in ("frames", "truths")} for n, r in results.items()}}
     a.out.with_suffix(".json").write_text(json.dumps(record, indent=1))

@@ -5,7 +5,7 @@ use std::cell::RefCell;
 use std::path::PathBuf;
 
 use anyhow::Result;
-use eval::memory_probe::{COPY, KEEP_LAST, Progress, REPROJECT, Report, SELECTION_CONTROL, Settings, probe};
+use eval::memory_probe::{COPY, KEEP_LAST, Progress, REPROJECT, REPROJECT_FUSED, Report, SELECTION_CONTROL, Settings, probe};
 use eval::stats::Interval;
 use indicatif::ProgressBar;
 
@@ -48,6 +48,16 @@ pub struct Options {
     /// Write the summary and every frame's scores here (JSON).
     #[arg(long)]
     pub out: Option<PathBuf>,
+    /// Another paired contrast, as A:B (row names; A minus B), beyond the standard ones.
+    #[arg(long = "contrast", value_parser = parse_contrast)]
+    pub contrasts: Vec<(String, String)>,
+}
+
+fn parse_contrast(s: &str) -> Result<(String, String), String> {
+    match s.split_once(':') {
+        Some((a, b)) if !a.is_empty() && !b.is_empty() => Ok((a.to_string(), b.to_string())),
+        _ => Err(format!("expected A:B (two row names), got {s:?}")),
+    }
 }
 
 impl Options {
@@ -65,6 +75,7 @@ impl Options {
             limit: self.limit,
             runtime: self.runtime.options(),
             out: self.out.clone(),
+            contrasts: self.contrasts.clone(),
         }
     }
 }
@@ -105,8 +116,23 @@ fn print(r: &Report, o: &Options) {
     if !r.contrasts.is_empty() {
         println!("\nContrasts (ΔPSNR dB, ΔSSIM):");
         for c in &r.contrasts {
-            println!("  {} − {}: {}  {:+.3} [{:+.3}, {:+.3}]", c.a, c.b, interval(&Some(c.psnr)), c.ssim.mean, c.ssim.lo, c.ssim.hi);
+            println!(
+                "  {} − {}: {}  {:+.3} [{:+.3}, {:+.3}]; inside the warp {}, outside {}",
+                c.a,
+                c.b,
+                interval(&Some(c.psnr)),
+                c.ssim.mean,
+                c.ssim.lo,
+                c.ssim.hi,
+                interval(&c.psnr_in_warp),
+                interval(&c.psnr_out_warp)
+            );
         }
+    }
+    println!("\nPSNR inside / outside the validity mask (the pixels the fused warp of the 3 best observed frames covers):");
+    for s in &r.rows {
+        let f = |v: Option<f64>| v.map_or("—".into(), |v| format!("{v:.2}"));
+        println!("  {:<38} {:>7} / {:>7}", s.name, f(s.psnr_in_warp), f(s.psnr_out_warp));
     }
     println!("\nPSNR by (task, range):");
     let names: Vec<&String> = r.rows.iter().map(|s| &s.name).collect();
@@ -134,6 +160,7 @@ fn short(name: &str) -> String {
         KEEP_LAST => "wp w/ keep-last".into(),
         COPY => "copy".into(),
         REPROJECT => "reproject".into(),
+        REPROJECT_FUSED => "reproject x3".into(),
         n => n.chars().take(14).collect(),
     }
 }

@@ -77,6 +77,7 @@ impl Options {
             limit: self.limit,
             runtime: self.runtime.options(),
             out: None,
+            contrasts: Vec::new(),
         };
         Settings { probe, vo: self.vo.clone(), quick: self.quick, rollout_frames: self.rollout_frames, out: self.out.clone() }
     }

@@ -37,11 +37,13 @@ pub struct StepOutcome {
     pub layout: String,
     pub exact_evaluations: usize,
     pub timings_ms: [f64; 5], // select, warp, sample, decode, store
-    /// The observed frame a geometry model warped into the new view (`None`
-    /// for other models, or when no frame with depth sees it).
-    pub warp_frame: Option<u64>,
+    /// The observed frames a geometry model warped into the new view, best
+    /// first (empty for other models, or when no frame with depth sees it).
+    pub warp_frames: Vec<u64>,
     /// In a synthetic session: how close the frame is to what the world shows there.
     pub truth: Option<TruthScore>,
+    /// The world's own frame (an observing step), not the model's.
+    pub observed: bool,
 }
 
 /// A generated frame against the synthetic world's true frame at its pose.
@@ -92,17 +94,56 @@ impl Engine {
         let cell = world::agent::spawn_point(&world, biome)
             .ok_or_else(|| ApiError::bad("synthetic.biome", "this world has no standable spawn in that biome"))?;
         let player = PlayerState::at_cell(cell, 0.0);
-        let frame = render(&world, &player.camera(), &k, &RenderSettings::default());
-        let latent = self.latent_of(&frame.rgb, k.width, k.height, &k, "synthetic")?;
-        // The world's depth comes with the first frame, as a depth camera's would.
+        let (first, _) = self.world_frame(&world, &k, 0, None, &player)?;
+        self.create(SessionRecord { policy, intrinsics: k, world_seed: Some(seed) }, vec![first], Some(world))
+    }
+
+    /// What the synthetic world shows `player`'s camera, as an observed frame
+    /// with the world's depth (as a depth camera would give it), and the depth.
+    fn world_frame(&self, world: &World, k: &Intrinsics, time: u64, action: Option<&Action>, player: &PlayerState) -> Result<(FrameRecord, Vec<u16>), ApiError> {
+        let frame = render(world, &player.camera(), k, &RenderSettings::default());
+        let latent = self.latent_of(&frame.rgb, k.width, k.height, k, "synthetic")?;
         let depth: Vec<u16> = frame.depth.iter().map(|&d| world::suite::depth_to_mm(d)).collect();
-        let first = FrameRecord {
-            meta: meta(&player.camera(), 0, OBSERVED, None, Some(&player)),
+        let record = FrameRecord {
+            meta: meta(&player.camera(), time, OBSERVED, action, Some(player)),
             latent,
             png: encode_png(k.width, k.height, &frame.rgb),
             depth_png16: encode_depth_png16(k.width, k.height, &depth),
         };
-        self.create(SessionRecord { policy, intrinsics: k, world_seed: Some(seed) }, vec![first], Some(world))
+        Ok((record, depth))
+    }
+
+    /// An observing step in a synthetic session: the world's physics moves
+    /// the camera and the world's true frame and depth there are stored as
+    /// an observed frame (exploration, as a robot's camera would record it);
+    /// nothing is generated.
+    pub fn step_observed(&self, s: &mut Session, action: &Action) -> Result<StepOutcome, ApiError> {
+        let (Some(world), Some(_)) = (s.world.clone(), s.frames.last().and_then(|f| f.player)) else {
+            return Err(ApiError::bad("observe", "only synthetic sessions have a world to observe; send real frames to /observe"));
+        };
+        let (pose, player) = s.motion(action)?;
+        let player = player.ok_or_else(|| ApiError::internal("a synthetic session's motion without a player"))?;
+        let t0 = Instant::now();
+        let (time, index) = (s.next_time(), s.frames.len() as u64);
+        let k = *s.intrinsics();
+        let (record, depth) = self.world_frame(&world, &k, time, Some(action), &player)?;
+        self.store.put_frame(s.id, index, &record)?;
+        s.push(time, pose, record.latent, Some(player), false)?;
+        let rgb = world::picture::decode_rgb(&record.png).map_err(ApiError::internal)?.0;
+        s.add_depth(index, rgb, k.width, k.height, depth)?;
+        Ok(StepOutcome {
+            index,
+            time,
+            pose,
+            png: record.png,
+            plan: ContextPlan { slots: Vec::new() },
+            layout: String::new(),
+            exact_evaluations: 0,
+            timings_ms: [0.0, 0.0, 0.0, 0.0, ms(t0)],
+            warp_frames: Vec::new(),
+            truth: None,
+            observed: true,
+        })
     }
 
     /// Stores a new session with its first frames and returns it, indexed.
@@ -130,16 +171,18 @@ impl Engine {
         let (plan, stats) = s.memory.select(&s.policy, &frustum, s.last_plan.as_ref());
         let select_ms = ms(t0);
         let action_values = action.to_vector().map(|v| v as f32);
-        let warp = if m.manifest().denoiser.warp.is_some() { s.warp_source(&frustum) } else { None };
+        let (warp_frames, warp) = match &m.manifest().denoiser.warp {
+            Some(spec) => s.warp_sources(&frustum, spec.frames),
+            None => (Vec::new(), Vec::new()),
+        };
         let request = model::Request {
             plan: &plan,
             target_time: time,
             target_pose: &pose,
             action: &action_values,
             seed: seed.unwrap_or(time),
-            warp: warp.map(|(_, w)| w),
+            warp: &warp,
         };
-        let warp_frame = warp.map(|(i, _)| i);
         let frames = &s.frames;
         let lookup = |_: usize, id: u64| frames.get(id as usize).map(|f| ContextFrame { latent: &f.latent, time: f.time, pose: &f.pose, generated: f.generated });
         let mut prediction = m.predict(&s.policy.packing, &[request], &lookup, sampler)?;
@@ -168,8 +211,9 @@ impl Engine {
             layout: prediction.layout,
             exact_evaluations: stats.overlap_evaluations,
             timings_ms: [select_ms, prediction.warp_ms, prediction.sample_ms, decode_ms, store_ms],
-            warp_frame,
+            warp_frames,
             truth,
+            observed: false,
         })
     }
 

@@ -342,6 +342,11 @@ pub struct StepRequest {
     #[serde(default)]
     #[schema(maximum = 9223372036854775807_u64)]
     expected_index: Option<u64>,
+    /// Synthetic sessions only: move by the action and record the world's
+    /// true frame and depth there as an observed frame, instead of
+    /// generating one (exploration, as a robot's camera would see it).
+    #[serde(default)]
+    observe: bool,
 }
 
 #[utoipa::path(post, path = "/v1/sessions/{id}/step", summary = "Select memories, generate the next frame, store it (durable before the answer)",
@@ -384,18 +389,25 @@ pub async fn step(State(st): St, id: Result<Path<u64>, PathRejection>, headers: 
     let st2 = st.clone();
     let out = blocking(move || {
         let pose = req.pose.as_ref().map(|p| pose_from(p, "pose")).transpose()?;
-        let o = st2.engine.step(&mut s, &req.action, pose, &sampler, req.seed)?;
+        let o = if req.observe {
+            if pose.is_some() {
+                return Err(ApiError::bad("observe", "an observing step moves by the world's physics; leave out pose"));
+            }
+            st2.engine.step_observed(&mut s, &req.action)?
+        } else {
+            st2.engine.step(&mut s, &req.action, pose, &sampler, req.seed)?
+        };
         let [select, warp, sample, decode, store] = o.timings_ms;
         Ok(StepAnswer {
             session: s.id,
             index: o.index,
             time: o.time,
             pose: PoseAnswer::of(&o.pose),
-            source: crate::session::GENERATED.into(),
+            source: if o.observed { crate::session::OBSERVED } else { crate::session::GENERATED }.into(),
             image_png: B64.encode(&o.png),
             steps: sampler.len(),
             provider: st2.engine.model.as_ref().map(|m| m.provider().to_string()),
-            selection: Selection { plan: PlanAnswer::of(&s.policy, &o.plan), layout: o.layout, exact_evaluations: o.exact_evaluations, warp_frame: o.warp_frame },
+            selection: Selection { plan: PlanAnswer::of(&s.policy, &o.plan), layout: o.layout, exact_evaluations: o.exact_evaluations, warp_frames: o.warp_frames },
             timings_ms: StepTimings { select, warp, sample, decode, store, total: 0.0 },
             truth: o.truth.map(|t| TruthAnswer { psnr_db: t.psnr_db, ssim: t.ssim, image: format!("/v1/sessions/{}/frames/{}/truth", s.id, o.index) }),
         })
@@ -707,9 +719,9 @@ pub struct Selection {
     pub layout: String,
     /// Exact frustum-overlap evaluations the selection needed.
     pub exact_evaluations: usize,
-    /// The observed frame with depth a geometry model warped into the new
-    /// view (null for other models, or when no frame with depth sees it).
-    pub warp_frame: Option<u64>,
+    /// The observed frames with depth a geometry model warped into the new
+    /// view, best first (empty for other models, or when no frame with depth sees it).
+    pub warp_frames: Vec<u64>,
 }
 
 #[derive(Serialize, ToSchema)]
@@ -740,7 +752,7 @@ pub struct StepAnswer {
     pub index: u64,
     pub time: u64,
     pub pose: PoseAnswer,
-    /// `generated`.
+    /// `generated`, or `observed` for an observing step.
     pub source: String,
     /// The generated frame, a base64 PNG.
     #[schema(content_encoding = "base64")]

@@ -117,13 +117,17 @@ impl Session {
         Ok(())
     }
 
-    /// The observed frame with depth that overlaps `target` most, ready to
-    /// warp, with its index; `None` when no frame with depth sees it.
-    pub fn warp_source(&self, target: &Frustum) -> Option<(u64, WarpSource<'_>)> {
-        let (plan, _) = self.depth_memory.select(&Policy::best_overlap(), target, None);
-        let id = plan.selected().next()?.1.id;
-        let d = self.depth_frames.get(&id)?;
-        Some((id, WarpSource { rgb: &d.rgb, depth_mm: &d.depth_mm, pose: &self.frames[id as usize].pose, intrinsics: self.intrinsics() }))
+    /// The `count` observed frames with depth that overlap `target` most,
+    /// best first, ready to warp, with their indices (none when no frame with
+    /// depth sees it).
+    pub fn warp_sources(&self, target: &Frustum, count: usize) -> (Vec<u64>, Vec<WarpSource<'_>>) {
+        let (plan, _) = self.depth_memory.select(&Policy::best_overlap_frames(count), target, None);
+        plan.selected()
+            .filter_map(|(_, f)| {
+                let d = self.depth_frames.get(&f.id)?;
+                Some((f.id, WarpSource { rgb: &d.rgb, depth_mm: &d.depth_mm, pose: &self.frames[f.id as usize].pose, intrinsics: self.intrinsics() }))
+            })
+            .unzip()
     }
 
     pub fn next_time(&self) -> u64 {

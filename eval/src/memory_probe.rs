@@ -31,6 +31,7 @@ pub const SELECTION_CONTROL: &str = "worldpack weights, recency contexts";
 pub const KEEP_LAST: &str = "worldpack weights, newest frame kept";
 pub const COPY: &str = "copy best-overlap frame";
 pub const REPROJECT: &str = "reproject best-overlap frame";
+pub const REPROJECT_FUSED: &str = "reproject 3 best frames, fused";
 
 /// What one probe run does; `worldpack probe`'s flags, one field each.
 #[derive(Clone, Debug)]
@@ -54,6 +55,8 @@ pub struct Settings {
     pub runtime: RuntimeOptions,
     /// Write the report and every frame's scores here (JSON).
     pub out: Option<PathBuf>,
+    /// More paired contrasts (row a minus row b, by name) beyond the standard ones.
+    pub contrasts: Vec<(String, String)>,
 }
 
 /// What the run is doing, for a progress display.
@@ -79,6 +82,11 @@ pub struct RowSummary {
     pub latency_ms: f64,
     pub psnr_vs_baseline: Option<Interval>,
     pub ssim_vs_baseline: Option<Interval>,
+    /// Mean PSNR inside and outside the validity mask (the pixels the fused
+    /// warp of the best observed frames covers), over the frames whose side
+    /// holds enough pixels.
+    pub psnr_in_warp: Option<f64>,
+    pub psnr_out_warp: Option<f64>,
 }
 
 #[derive(Serialize)]
@@ -98,6 +106,9 @@ pub struct Contrast {
     pub b: String,
     pub psnr: Interval,
     pub ssim: Interval,
+    /// The same difference inside and outside the validity mask (frames where both rows have that side).
+    pub psnr_in_warp: Option<Interval>,
+    pub psnr_out_warp: Option<Interval>,
 }
 
 const BOOTSTRAP_REPS: usize = 4000;
@@ -160,7 +171,16 @@ pub fn probe(o: &Settings, progress: &dyn Fn(Progress)) -> Result<Report, Progra
     }
     rows.push(Row { name: COPY.into(), predictor: Predictor::Copy });
     rows.push(Row { name: REPROJECT.into(), predictor: Predictor::Reproject });
-    row_models.extend([None, None]);
+    rows.push(Row { name: REPROJECT_FUSED.into(), predictor: Predictor::ReprojectFused });
+    row_models.extend([None, None, None]);
+    for (a, b) in &o.contrasts {
+        for name in [a, b] {
+            if !rows.iter().any(|r| &r.name == name) {
+                let names: Vec<&str> = rows.iter().map(|r| r.name.as_str()).collect();
+                return Err(setting("--contrast", format!("no row called {name:?}; the rows are {}", names.join(", "))));
+            }
+        }
+    }
 
     let settings = ProbeSettings { stride: o.stride, batch: o.batch, seed: crate::probe::SEED };
     let targets: usize = trajectories.iter().map(|t| t.return_frames(o.stride).len()).sum();
@@ -185,7 +205,7 @@ pub fn probe(o: &Settings, progress: &dyn Fn(Progress)) -> Result<Report, Progra
     }
     progress(Progress::Done);
 
-    let report = summarise(&rows, &row_models, &latencies, &all);
+    let report = summarise(&rows, &row_models, &latencies, &all, &o.contrasts);
     if let Some(path) = &o.out {
         let json = serde_json::json!({
             "format": "worldpack-probe/1",
@@ -222,7 +242,26 @@ fn diffs(all: &[&TrajectoryScores], a: usize, b: usize, metric: fn(&FrameScore) 
     all.iter().map(|t| t.rows[a].iter().zip(&t.rows[b]).map(|(x, y)| metric(x) - metric(y)).collect()).collect()
 }
 
-fn summarise(rows: &[Row], row_models: &[Option<(&Model, usize)>], latencies: &[f64], all: &[TrajectoryScores]) -> Report {
+/// Row `i`'s mean PSNR on one side of the validity mask, over the frames that have that side.
+fn masked_mean(all: &[&TrajectoryScores], i: usize, side: fn(&FrameScore) -> Option<f64>) -> Option<f64> {
+    let v: Vec<f64> = all.iter().flat_map(|t| t.rows[i].iter().filter_map(side)).collect();
+    (!v.is_empty()).then(|| mean_std(&v).0)
+}
+
+/// Row `a` minus row `b` on one side of the validity mask, per trajectory,
+/// over the frames where both have that side; `None` when no frame has.
+fn masked_contrast(all: &[&TrajectoryScores], a: usize, b: usize, side: fn(&FrameScore) -> Option<f64>) -> Option<Interval> {
+    let d: Vec<Vec<f64>> = all
+        .iter()
+        .map(|t| t.rows[a].iter().zip(&t.rows[b]).filter_map(|(x, y)| Some(side(x)? - side(y)?)).collect::<Vec<f64>>())
+        .filter(|t| !t.is_empty())
+        .collect();
+    (!d.is_empty()).then(|| cluster_bootstrap(&d, BOOTSTRAP_REPS, 17))
+}
+
+fn summarise(rows: &[Row], row_models: &[Option<(&Model, usize)>], latencies: &[f64], all: &[TrajectoryScores], extra: &[(String, String)]) -> Report {
+    let in_warp = |f: &FrameScore| f.psnr_in_warp;
+    let out_warp = |f: &FrameScore| f.psnr_out_warp;
     let psnr = |f: &FrameScore| f.psnr;
     let ssim = |f: &FrameScore| f.ssim;
     let everything: Vec<&TrajectoryScores> = all.iter().collect();
@@ -250,6 +289,8 @@ fn summarise(rows: &[Row], row_models: &[Option<(&Model, usize)>], latencies: &[
                 latency_ms: latencies[i],
                 psnr_vs_baseline: vs(psnr),
                 ssim_vs_baseline: vs(ssim),
+                psnr_in_warp: masked_mean(&everything, i, in_warp),
+                psnr_out_warp: masked_mean(&everything, i, out_warp),
             }
         })
         .collect();
@@ -267,12 +308,16 @@ fn summarise(rows: &[Row], row_models: &[Option<(&Model, usize)>], latencies: &[
     ];
     let contrasts = PAIRS
         .iter()
-        .filter_map(|&(a, b)| Some((a, b, index(a)?, index(b)?)))
+        .map(|&(a, b)| (a, b))
+        .chain(extra.iter().map(|(a, b)| (a.as_str(), b.as_str())))
+        .filter_map(|(a, b)| Some((a, b, index(a)?, index(b)?)))
         .map(|(a, b, i, j)| Contrast {
             a: a.into(),
             b: b.into(),
             psnr: cluster_bootstrap(&diffs(&everything, i, j, psnr), BOOTSTRAP_REPS, 11),
             ssim: cluster_bootstrap(&diffs(&everything, i, j, ssim), BOOTSTRAP_REPS, 11),
+            psnr_in_warp: masked_contrast(&everything, i, j, in_warp),
+            psnr_out_warp: masked_contrast(&everything, i, j, out_warp),
         })
         .collect();
 
@@ -309,7 +354,7 @@ mod tests {
     use super::*;
 
     fn score(t: usize, psnr: f64) -> FrameScore {
-        FrameScore { t, psnr, ssim: psnr / 100.0, lpips: None, dreamsim: None, sharpness: None }
+        FrameScore { t, psnr, ssim: psnr / 100.0, lpips: None, dreamsim: None, sharpness: None, psnr_in_warp: None, psnr_out_warp: None }
     }
 
     /// Rows: baseline, worldpack (+1 dB on aba, +3 dB on abca), copy (−2 dB
@@ -340,7 +385,7 @@ mod tests {
             Row { name: "worldpack".into(), predictor: Predictor::Copy },
             Row { name: COPY.into(), predictor: Predictor::Copy },
         ];
-        let r = summarise(&rows, &[None, None, None], &[1.0, 2.0, 0.5], &scores());
+        let r = summarise(&rows, &[None, None, None], &[1.0, 2.0, 0.5], &scores(), &[]);
         assert_eq!(r.rows.len(), 3);
         assert!(r.rows[0].psnr_vs_baseline.is_none(), "the baseline is not paired with itself");
         let wp = r.rows[1].psnr_vs_baseline.unwrap();

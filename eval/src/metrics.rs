@@ -19,6 +19,25 @@ pub fn psnr(a: &[u8], b: &[u8]) -> f64 {
     if mse == 0.0 { PSNR_CAP_DB } else { (10.0 * (255.0 * 255.0 / mse).log10()).min(PSNR_CAP_DB) }
 }
 
+/// PSNR over the pixels whose `mask` entry equals `inside` (RGB images,
+/// one mask entry per pixel); `None` when fewer than `min_pixels` qualify.
+pub fn psnr_where(a: &[u8], b: &[u8], mask: &[bool], inside: bool, min_pixels: usize) -> Option<f64> {
+    assert_eq!(a.len(), b.len(), "psnr_where: images differ in size");
+    assert_eq!(a.len(), mask.len() * 3, "psnr_where: one mask entry per pixel");
+    let (mut se, mut n) = (0.0, 0usize);
+    for ((x, y), &m) in a.chunks_exact(3).zip(b.chunks_exact(3)).zip(mask) {
+        if m == inside {
+            se += x.iter().zip(y).map(|(&p, &q)| (p as f64 - q as f64).powi(2)).sum::<f64>();
+            n += 1;
+        }
+    }
+    if n < min_pixels.max(1) {
+        return None;
+    }
+    let mse = se / (3 * n) as f64;
+    Some(if mse == 0.0 { PSNR_CAP_DB } else { (10.0 * (255.0 * 255.0 / mse).log10()).min(PSNR_CAP_DB) })
+}
+
 /// Mean squared difference between neighbouring pixels (right and down) of
 /// an interleaved RGB image's luma: how much edge a frame carries. Blur
 /// lowers it, so a prediction's energy over the truth's tells a sharp frame
@@ -112,6 +131,18 @@ pub fn ssim(a: &[u8], b: &[u8], width: usize, height: usize) -> Option<f64> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn psnr_where_scores_only_its_side_of_the_mask() {
+        let truth = [10u8; 12];
+        let mut pred = [10u8; 12];
+        pred[9..12].copy_from_slice(&[20, 20, 20]); // the last pixel is off by 10
+        let mask = [true, true, true, false];
+        assert_eq!(psnr_where(&pred, &truth, &mask, true, 1), Some(PSNR_CAP_DB));
+        let outside = psnr_where(&pred, &truth, &mask, false, 1).unwrap();
+        assert!((outside - 10.0 * (255.0f64 * 255.0 / 100.0).log10()).abs() < 1e-9);
+        assert_eq!(psnr_where(&pred, &truth, &mask, false, 2), None, "one pixel is fewer than asked for");
+    }
 
     fn noise_image(seed: u64, n: usize) -> Vec<u8> {
         let mut rng = memory::rng::SplitMix64::new(seed);

@@ -3,15 +3,17 @@
 //! score says only how well it uses what it is shown — its weights and its
 //! context selection — with no compounding error from its own rollouts.
 
+use std::collections::HashMap;
 use std::time::Instant;
 
-use memory::{ContextPlan, FrameMemory, MemoryFrame, Packing, Policy};
+use memory::{ContextPlan, FrameMemory, MemoryFrame, Policy};
 use model::generate::frame_to_tensor;
 use model::pack::ContextFrame;
+use model::warp::forward_warp_many;
 use model::{Model, ModelError, Request, Sampler, Tensor, WarpSource};
 use serde::Serialize;
 
-use crate::metrics::{psnr, sharpness_ratio, ssim};
+use crate::metrics::{psnr, psnr_where, sharpness_ratio, ssim};
 use crate::reproject::{reproject, reproject_fused};
 use crate::suite::{SuiteError, Trajectory};
 
@@ -51,7 +53,7 @@ impl Predictor<'_> {
         match self {
             Predictor::Model { policy, .. } => policy.clone(),
             Predictor::Copy | Predictor::Reproject => Policy::best_overlap(),
-            Predictor::ReprojectFused => Policy { packing: Packing::uncompressed(FUSED_FRAMES), ..Policy::best_overlap() },
+            Predictor::ReprojectFused => Policy::best_overlap_frames(FUSED_FRAMES),
         }
     }
 }
@@ -76,6 +78,12 @@ pub struct FrameScore {
     /// scores saved before it was measured.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub sharpness: Option<f64>,
+    /// PSNR over the pixels the fused warp of the best observed frames covers,
+    /// and over the rest (the probe's validity mask; absent elsewhere).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub psnr_in_warp: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub psnr_out_warp: Option<f64>,
 }
 
 impl FrameScore {
@@ -88,6 +96,8 @@ impl FrameScore {
             lpips: None,
             dreamsim: None,
             sharpness: sharpness_ratio(predicted, truth, w, h),
+            psnr_in_warp: None,
+            psnr_out_warp: None,
         }
     }
 }
@@ -154,13 +164,34 @@ pub fn encode_all(m: &Model, traj: &Trajectory) -> Result<Vec<Vec<f32>>, ProbeEr
     Ok(latents)
 }
 
-/// The stored frame a geometry model warps, and the non-learned references
-/// copy or warp: the first of a `Policy::best_overlap` plan (the observed
-/// frame that overlaps the target view most), with its depth.
-pub fn warp_source<'a>(traj: &'a Trajectory, plan: &ContextPlan) -> Option<WarpSource<'a>> {
-    let s = plan.selected().next()?.1.id as usize;
-    Some(WarpSource { rgb: traj.frame(s), depth_mm: traj.depth(s), pose: &traj.poses[s], intrinsics: &traj.intrinsics })
+/// The frames of a `Policy::best_overlap_frames` plan (the observed frames
+/// that overlap the target view most, best first) with their depth: what a
+/// geometry model and the warping references warp.
+pub fn warp_sources<'a>(traj: &'a Trajectory, plan: &ContextPlan) -> Vec<WarpSource<'a>> {
+    plan.selected()
+        .map(|(_, f)| f.id as usize)
+        .map(|s| WarpSource { rgb: traj.frame(s), depth_mm: traj.depth(s), pose: &traj.poses[s], intrinsics: &traj.intrinsics })
+        .collect()
 }
+
+/// A geometry model's warp-source policy: as many best-overlap frames as its manifest fuses.
+pub fn warp_policy(m: &Model) -> Option<Policy> {
+    m.manifest().denoiser.warp.as_ref().map(|w| Policy::best_overlap_frames(w.frames))
+}
+
+/// The probe's validity mask of target `t`: the pixels the fused warp of
+/// `plan`'s frames (the best-overlap observed ones) covers; none without a frame.
+pub fn validity_mask(traj: &Trajectory, plan: &ContextPlan, t: usize) -> Vec<bool> {
+    let sources = warp_sources(traj, plan);
+    if sources.is_empty() {
+        return vec![false; traj.intrinsics.width as usize * traj.intrinsics.height as usize];
+    }
+    forward_warp_many(&sources, &traj.poses[t]).expect("suite frames match their intrinsics").mask
+}
+
+/// A side of the validity mask is scored only when it holds at least this
+/// many pixels (1.5% of a 64×64 frame): fewer make a PSNR of noise.
+pub const MASK_MIN_PIXELS: usize = 64;
 
 /// What a non-learned reference shows for frame `t`: the first frame of
 /// `plan` (the best-overlap one), copied or warped into `t`'s pose.
@@ -168,14 +199,10 @@ pub fn reference_image(traj: &Trajectory, how: &Predictor, plan: &ContextPlan, t
     let src = plan.selected().next().map_or(t - 1, |(_, f)| f.id as usize);
     match how {
         Predictor::Reproject => reproject(traj.frame(src), traj.depth(src), &traj.intrinsics, &traj.poses[src], &traj.poses[t]).0,
-        Predictor::ReprojectFused => {
-            let ids: Vec<usize> = plan.selected().map(|(_, f)| f.id as usize).collect();
-            let sources: Vec<WarpSource> = if ids.is_empty() { vec![src] } else { ids }
-                .into_iter()
-                .map(|s| WarpSource { rgb: traj.frame(s), depth_mm: traj.depth(s), pose: &traj.poses[s], intrinsics: &traj.intrinsics })
-                .collect();
-            reproject_fused(&sources, &traj.poses[t]).0
-        }
+        Predictor::ReprojectFused => match warp_sources(traj, plan) {
+            sources if sources.is_empty() => traj.frame(src).to_vec(),
+            sources => reproject_fused(&sources, &traj.poses[t]).0,
+        },
         _ => traj.frame(src).to_vec(),
     }
 }
@@ -200,14 +227,15 @@ fn predict_model(
     latents: &[Vec<f32>],
     targets: &[usize],
     plans: &[ContextPlan],
-    best_overlap: &[ContextPlan],
+    warp_plans: &[ContextPlan],
     settings: &Settings,
     mut done: impl FnMut(usize, Vec<u8>),
 ) -> Result<(), ProbeError> {
     let frame = |_: usize, id: u64| latents.get(id as usize).map(|l| ContextFrame { latent: l, time: id, pose: &traj.poses[id as usize], generated: false });
     let size = settings.batch.max(1);
     let warps = m.manifest().denoiser.warp.is_some();
-    for ((chunk, plans), sources) in targets.chunks(size).zip(plans.chunks(size)).zip(best_overlap.chunks(size)) {
+    let sources: Vec<Vec<WarpSource>> = if warps { warp_plans.iter().map(|p| warp_sources(traj, p)).collect() } else { vec![Vec::new(); targets.len()] };
+    for ((chunk, plans), sources) in targets.chunks(size).zip(plans.chunks(size)).zip(sources.chunks(size)) {
         let requests: Vec<Request> = chunk
             .iter()
             .zip(plans)
@@ -218,7 +246,7 @@ fn predict_model(
                 target_pose: &traj.poses[t],
                 action: &traj.actions[t],
                 seed: target_seed(settings.seed, t),
-                warp: if warps { warp_source(traj, source) } else { None },
+                warp: source,
             })
             .collect();
         let prediction = m.predict(&policy.packing, &requests, &frame, sampler)?;
@@ -240,18 +268,33 @@ pub fn probe_trajectory(
     progress: &dyn Fn(usize),
 ) -> Result<TrajectoryScores, ProbeError> {
     let targets = traj.return_frames(settings.stride);
-    // Each row's plans, then the best-overlap plans (geometry models' warp sources).
-    let owned: Vec<Policy> = rows.iter().map(|r| r.predictor.policy()).chain([Policy::best_overlap()]).collect();
+    // Each row's plans, then the validity mask's frames, then each geometry
+    // row's warp sources (empty plans for other rows).
+    let warp_policies: Vec<Option<Policy>> = rows.iter().map(|r| if let Predictor::Model { model, .. } = &r.predictor { warp_policy(model) } else { None }).collect();
+    let owned: Vec<Policy> = rows
+        .iter()
+        .map(|r| r.predictor.policy())
+        .chain([Policy::best_overlap_frames(FUSED_FRAMES)])
+        .chain(warp_policies.iter().flatten().cloned())
+        .collect();
     let policies: Vec<&Policy> = owned.iter().collect();
     let mut plans = plans(traj, &policies, &targets)?;
-    let best_overlap = plans.pop().expect("the best-overlap plans");
+    let mut warp_plans = plans.split_off(rows.len() + 1).into_iter();
+    let mask_plans = plans.pop().expect("the validity mask's plans");
+    let warp_plans: Vec<Vec<ContextPlan>> = warp_policies.iter().map(|p| if p.is_some() { warp_plans.next().unwrap_or_default() } else { Vec::new() }).collect();
     let (w, h) = (traj.intrinsics.width as usize, traj.intrinsics.height as usize);
+    let masks: HashMap<usize, Vec<bool>> = targets.iter().zip(&mask_plans).map(|(&t, p)| (t, validity_mask(traj, p, t))).collect();
     let score = |t: usize, predicted: &[u8]| {
         let truth = traj.frame(t);
-        FrameScore::of(t, predicted, truth, w, h)
+        let mask = &masks[&t];
+        FrameScore {
+            psnr_in_warp: psnr_where(predicted, truth, mask, true, MASK_MIN_PIXELS),
+            psnr_out_warp: psnr_where(predicted, truth, mask, false, MASK_MIN_PIXELS),
+            ..FrameScore::of(t, predicted, truth, w, h)
+        }
     };
     let mut scores = Vec::with_capacity(rows.len());
-    for (row, plans) in rows.iter().zip(&plans) {
+    for (row_index, (row, plans)) in rows.iter().zip(&plans).enumerate() {
         let mut out = Vec::with_capacity(targets.len());
         match &row.predictor {
             Predictor::Model { model, policy, sampler } => {
@@ -264,7 +307,7 @@ pub fn probe_trajectory(
                         model.manifest().image.height
                     )));
                 }
-                predict_model(model, policy, sampler, traj, &latents, &targets, plans, &best_overlap, settings, |t, img| {
+                predict_model(model, policy, sampler, traj, &latents, &targets, plans, &warp_plans[row_index], settings, |t, img| {
                     out.push(score(t, &img));
                     progress(1);
                 })?;
@@ -292,7 +335,6 @@ pub fn latency_ms(traj: &Trajectory, row: &Row, latents: &[Vec<f32>], calls: usi
     let all = traj.return_frames(1);
     let warm_up: Vec<usize> = all.iter().copied().take(WARM_UP_CALLS.min(all.len().saturating_sub(1))).collect();
     let targets: Vec<usize> = all.iter().copied().skip(warm_up.len()).take(calls.max(1)).collect();
-    let copy = Policy::best_overlap();
     let policy = row.predictor.policy();
     let frusta = traj.frusta()?;
     let mut store = FrameMemory::new();
@@ -306,8 +348,8 @@ pub fn latency_ms(traj: &Trajectory, row: &Row, latents: &[Vec<f32>], calls: usi
             let (plan, _) = store.select(&policy, &frusta[t], None);
             match &row.predictor {
                 Predictor::Model { model, policy, sampler } => {
-                    // A geometry model's warp source is chosen within the timed call too.
-                    let source = if model.manifest().denoiser.warp.is_some() { store.select(&copy, &frusta[t], None).0 } else { plan.clone() };
+                    // A geometry model's warp sources are chosen within the timed call too.
+                    let source = warp_policy(model).map_or_else(|| plan.clone(), |p| store.select(&p, &frusta[t], None).0);
                     predict_model(model, policy, sampler, traj, latents, &[t], &[plan], &[source], &settings, |_, img| {
                         std::hint::black_box(img);
                     })?;

@@ -4,12 +4,12 @@
 //! joining the memory that later frames select from. Trajectories run in
 //! lockstep so one denoiser call serves a whole batch of them.
 
-use memory::{ContextPlan, FrameMemory, Frustum, MemoryFrame, Policy};
+use memory::{ContextPlan, FrameMemory, Frustum, MemoryFrame};
 use model::pack::ContextFrame;
-use model::Request;
+use model::{Request, WarpSource};
 
 use crate::features::{Embedding, FeatureError, Lpips, VideoFeatures, frechet_distance};
-use crate::probe::{FrameScore, Predictor, ProbeError, Row, reference_image, warp_source};
+use crate::probe::{FrameScore, Predictor, ProbeError, Row, reference_image, warp_sources};
 use crate::suite::Trajectory;
 
 /// The frames a rollout generates: the return leg, from the returning point,
@@ -118,8 +118,8 @@ pub fn rollout_as(
         }
         Predictor::Model { model, policy, sampler } => {
             model.layout_for(&policy.packing)?; // before any work: a policy the model cannot take fails at once
-            let warps = model.manifest().denoiser.warp.is_some();
-            let best_overlap = Policy::best_overlap();
+            let warp_policy = crate::probe::warp_policy(model);
+            let warps = warp_policy.is_some();
             let mut runs = trajs
                 .iter()
                 .zip(observed_latents)
@@ -153,12 +153,14 @@ pub fn rollout_as(
                         let (plan, _) = r.store.select(policy, &r.frusta[r.next], r.previous.as_ref());
                         r.previous = Some(plan.clone());
                         plans.push(plan);
-                        sources.push(warps.then(|| r.observed.select(&best_overlap, &r.frusta[r.next], None).0));
+                        sources.push(warp_policy.as_ref().map(|p| r.observed.select(p, &r.frusta[r.next], None).0));
                     }
+                    let warp_sources: Vec<Vec<WarpSource>> =
+                        chunk.iter().zip(&sources).map(|(&i, s)| s.as_ref().map_or_else(Vec::new, |p| warp_sources(runs[i].traj, p))).collect();
                     let requests: Vec<Request> = chunk
                         .iter()
                         .zip(&plans)
-                        .zip(&sources)
+                        .zip(&warp_sources)
                         .map(|((&i, plan), source)| {
                             let (r, t) = (&runs[i], runs[i].next);
                             Request {
@@ -167,7 +169,7 @@ pub fn rollout_as(
                                 target_pose: &r.traj.poses[t],
                                 action: &r.traj.actions[t],
                                 seed: frame_seed(seed, suite_index[i], t),
-                                warp: source.as_ref().and_then(|s| warp_source(r.traj, s)),
+                                warp: source,
                             }
                         })
                         .collect();

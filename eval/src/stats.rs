@@ -178,7 +178,7 @@ mod tests {
 
     #[test]
     fn pooled_rows_pair_frames_and_weigh_trajectories() {
-        let score = |t: usize, psnr: f64| FrameScore { t, psnr, ssim: psnr / 100.0, lpips: None, dreamsim: None, sharpness: None };
+        let score = |t: usize, psnr: f64| FrameScore { t, psnr, ssim: psnr / 100.0, lpips: None, dreamsim: None, sharpness: None, psnr_in_warp: None, psnr_out_warp: None };
         // Two trajectories, of 3 frames and 1 frame; the second row is 1 dB better on every frame.
         let a = vec![vec![score(0, 10.0), score(1, 10.0), score(2, 10.0)], vec![score(0, 20.0)]];
         let b: Vec<Vec<FrameScore>> = a.iter().map(|t| t.iter().map(|f| score(f.t, f.psnr + 1.0)).collect()).collect();

@@ -855,7 +855,7 @@ mod tests {
                 range: 5,
                 rows: rows
                     .iter()
-                    .map(|&p| [10, 20].iter().map(|&t| FrameScore { t, psnr: p + i as f64, ssim: 0.5, lpips: None, dreamsim: None, sharpness: None }).collect())
+                    .map(|&p| [10, 20].iter().map(|&t| FrameScore { t, psnr: p + i as f64, ssim: 0.5, lpips: None, dreamsim: None, sharpness: None, psnr_in_warp: None, psnr_out_warp: None }).collect())
                     .collect(),
             })
             .collect()

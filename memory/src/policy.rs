@@ -209,10 +209,15 @@ impl Policy {
     /// Only overlap with the target view counts, one frame: the frame the
     /// non-learned references copy or warp, and a geometry model's warp source.
     pub fn best_overlap() -> Policy {
+        Policy::best_overlap_frames(1)
+    }
+
+    /// The `frames` stored frames that overlap the target view most, best first.
+    pub fn best_overlap_frames(frames: usize) -> Policy {
         Policy {
             kind: PolicyKind::MemoryRetrieval,
             ranking: Ranking::Score,
-            packing: Packing::uncompressed(1),
+            packing: Packing::uncompressed(frames),
             estimator: Estimator::Exact,
             weights: ScoreWeights { overlap: 1.0, recency: 0.0 },
             keep_last: false,

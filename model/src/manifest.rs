@@ -153,6 +153,14 @@ pub struct DenoiserSpec {
 pub struct WarpSpec {
     pub input: String,
     pub channels: usize,
+    /// How many best-overlap frames with depth the runtime warps behind one
+    /// z-buffer into this input (1 unless the manifest says otherwise).
+    #[serde(default = "one_frame")]
+    pub frames: usize,
+}
+
+fn one_frame() -> usize {
+    1
 }
 
 /// The context noise levels the runtime feeds: training corrupted context
@@ -260,6 +268,9 @@ impl Manifest {
             }
         }
         if let Some(w) = &d.warp {
+            if w.frames == 0 {
+                return bad("denoiser.warp.frames", "must be at least 1".into());
+            }
             if w.channels != a.latent.channels + 1 {
                 return bad("denoiser.warp.channels", format!("expected the latent's {} channels plus coverage, got {}", a.latent.channels, w.channels));
             }

@@ -13,7 +13,7 @@ use crate::graph::Tensor;
 use crate::manifest::LayoutSpec;
 use crate::pack::{ContextFrame, pack, stack};
 use crate::sampler::Sampler;
-use crate::warp::{WarpSource, coverage_grid, forward_warp, warped_image};
+use crate::warp::{WarpSource, coverage_grid, forward_warp_many, warped_image};
 use crate::Model;
 
 /// One next frame to predict.
@@ -27,10 +27,11 @@ pub struct Request<'a> {
     pub action: &'a [f32],
     /// Seeds this item's noise alone: the same seed gives the same frame in any batch.
     pub seed: u64,
-    /// The stored frame with depth that a geometry model warps into the
-    /// target view (`None`: none at hand, and the model gets an empty warp,
-    /// as in training). Models without the warp input ignore it.
-    pub warp: Option<WarpSource<'a>>,
+    /// The stored frames with depth, best first, that a geometry model warps
+    /// into the target view behind one z-buffer (empty: none at hand, and the
+    /// model gets an empty warp, as in training). Models without the warp
+    /// input ignore them.
+    pub warp: &'a [WarpSource<'a>],
 }
 
 /// A predicted frame: its scaled latent (for the memory) and its RGB pixels.
@@ -120,7 +121,7 @@ impl Model {
     /// The geometry model's warp input for a batch, (B, C + 1, h, w): each
     /// item's source warped into its target pose and encoded, then the share
     /// of each latent cell the warp covers. No source: an empty warp.
-    pub fn warp_input(&self, items: &[(Option<WarpSource>, &Pose)]) -> Result<Tensor, ModelError> {
+    pub fn warp_input(&self, items: &[(&[WarpSource], &Pose)]) -> Result<Tensor, ModelError> {
         let m = self.manifest();
         let (w, h) = (m.image.width, m.image.height);
         let l = &m.autoencoder.latent;
@@ -128,20 +129,17 @@ impl Model {
         let mut images = Vec::with_capacity(items.len() * 3 * w * h);
         let mut cover = Vec::with_capacity(items.len());
         for (source, target) in items {
-            match source {
-                Some(src) => {
-                    let k = src.intrinsics;
-                    if (k.width as usize, k.height as usize) != (w, h) {
-                        return Err(ModelError::input("warp", format!("the source frame is {}x{}, the model takes {w}x{h}", k.width, k.height)));
-                    }
-                    let warped = forward_warp(src, target)?;
-                    images.extend(warped_image(&warped));
-                    cover.push(coverage_grid(&warped.mask, w, h, h / l.height));
+            if let Some(src) = source.first() {
+                let k = src.intrinsics;
+                if (k.width as usize, k.height as usize) != (w, h) {
+                    return Err(ModelError::input("warp", format!("the source frame is {}x{}, the model takes {w}x{h}", k.width, k.height)));
                 }
-                None => {
-                    images.extend(std::iter::repeat_n(0.0, 3 * w * h));
-                    cover.push(vec![0.0; cells]);
-                }
+                let warped = forward_warp_many(source, target)?;
+                images.extend(warped_image(&warped));
+                cover.push(coverage_grid(&warped.mask, w, h, h / l.height));
+            } else {
+                images.extend(std::iter::repeat_n(0.0, 3 * w * h));
+                cover.push(vec![0.0; cells]);
             }
         }
         let latents = self.encode(&Tensor::new(vec![items.len(), 3, h, w], images))?;

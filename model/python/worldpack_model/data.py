@@ -62,8 +62,8 @@ class Batch:
     groups: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]
     # (trajectory, frame) of each target, so a trainer can gather related batches.
     rows: list[tuple[int, int]]
-    # The stored frame each target's warp comes from (-1: none), with `warp`.
-    warp_sources: list[int] | None = None
+    # The stored frames each target's warp is made from (empty: none), with `warp`.
+    warp_sources: list[list[int]] | None = None
 
 
 # A target needs memory when at least this share of its view is shown only by
@@ -142,37 +142,44 @@ class PlannedLatents:
             rows += [(int(i), int(t)) for i, t in self.needy[rng.integers(len(self.needy), size=focused)]]
         return self.gather(rows, self.draw_warp_sources(rng, rows) if self.warp else None)
 
-    # How a training target's warp source is drawn from its plan: the first
-    # slot (the newest or best frame), any selected frame (older memories
-    # warp with more holes, as on a return leg), or none (no depth at hand).
-    WARP_FIRST, WARP_ANY, WARP_NONE = 0.3, 0.6, 0.1
+    # How a training target's warp sources are drawn from its plan: none (no
+    # depth at hand), else 1 to WARP_FRAMES frames (the runtime fuses its
+    # manifest's `warp.frames` best-overlap frames), the first of them the
+    # plan's first slot (the newest or best frame) with probability
+    # WARP_FIRST, the rest any selected frames (older memories warp with more
+    # holes, as on a return leg).
+    WARP_NONE, WARP_FIRST, WARP_FRAMES = 0.1, 0.3, 3
 
-    def draw_warp_sources(self, rng: np.random.Generator, rows: list[tuple[int, int]]) -> list[int]:
+    def draw_warp_sources(self, rng: np.random.Generator, rows: list[tuple[int, int]]) -> list[list[int]]:
         out = []
         for i, t in rows:
             ids = self.plans[i][t]
             present = ids[ids >= 0]
-            u = rng.random()
-            if len(present) == 0 or u >= self.WARP_FIRST + self.WARP_ANY:
-                out.append(-1)
-            elif u < self.WARP_FIRST:
-                out.append(int(present[0]))
+            if len(present) == 0 or rng.random() < self.WARP_NONE:
+                out.append([])
+                continue
+            n = min(len(present), int(rng.integers(1, self.WARP_FRAMES + 1)))
+            if rng.random() < self.WARP_FIRST:
+                rest = rng.choice(present[1:], size=n - 1, replace=False) if n > 1 else []
+                out.append([int(present[0])] + [int(f) for f in rest])
             else:
-                out.append(int(rng.choice(present)))
+                out.append([int(f) for f in rng.choice(present, size=n, replace=False)])
         return out
 
     def warp_pixels(self, batch: Batch):
-        """NumPy inputs of `warp.forward_warp` for a batch: source RGB and depth,
-        source and target camera-to-world poses, and which rows have a source."""
-        src = [s if s >= 0 else t for (_, t), s in zip(batch.rows, batch.warp_sources)]
-        rgb = np.stack([self.rgb[i][s] for (i, _), s in zip(batch.rows, src)])
-        depth = np.stack([self.depth[i][s] for (i, _), s in zip(batch.rows, src)]).astype(np.int32)
-        src_pose = np.stack([self.poses[i][s] for (i, _), s in zip(batch.rows, src)])
+        """NumPy inputs of `warp.forward_warp` for a batch, padded to the most
+        frames any row has: source RGB (B, K, H, W, 3) and depth, source poses
+        (B, K, 4, 4), target poses (B, 4, 4), and which frames are present (B, K)."""
+        k = max(1, max(len(s) for s in batch.warp_sources))
+        frames = [[*s, *[t] * (k - len(s))] for (_, t), s in zip(batch.rows, batch.warp_sources)]  # padding: never warped
+        rgb = np.stack([[self.rgb[i][f] for f in fs] for (i, _), fs in zip(batch.rows, frames)])
+        depth = np.stack([[self.depth[i][f] for f in fs] for (i, _), fs in zip(batch.rows, frames)]).astype(np.int32)
+        src_pose = np.stack([[self.poses[i][f] for f in fs] for (i, _), fs in zip(batch.rows, frames)])
         dst_pose = np.stack([self.poses[i][t] for i, t in batch.rows])
-        has = np.array([s >= 0 for s in batch.warp_sources])
-        return rgb, depth, src_pose, dst_pose, has
+        present = np.array([[n < len(s) for n in range(k)] for s in batch.warp_sources])
+        return rgb, depth, src_pose, dst_pose, present
 
-    def gather(self, rows: list[tuple[int, int]], warp_sources: list[int] | None = None) -> Batch:
+    def gather(self, rows: list[tuple[int, int]], warp_sources: list[list[int]] | None = None) -> Batch:
         targets, actions, rel_times, slots = [], [], [], []
         for i, t in rows:
             ids = self.plans[i][t]
@@ -192,6 +199,6 @@ class PlannedLatents:
             groups.append(tuple(np.stack([s[k][part] for s in slots]) for k in range(4)))
             start += count
         if self.warp and warp_sources is None:  # deterministic: the first selected frame
-            warp_sources = [int(next(iter(self.plans[i][t][self.plans[i][t] >= 0]), -1)) for i, t in rows]
+            warp_sources = [[int(f) for f in self.plans[i][t][self.plans[i][t] >= 0][:1]] for i, t in rows]
         return Batch(np.stack(targets), np.stack(actions).astype(np.float32), np.array(rel_times, np.float32), groups,
                      list(rows), warp_sources)

@@ -343,7 +343,9 @@ def export(run: Path, policy: str, layout_names: list[str], data: Path, out: Pat
             "weights_storage": "float16 (parameters rounded to float16 before export; computed in float32)" if half else "float32",
             "layouts": layouts_json,
             **({"warp": {"input": "warp", "channels": cfg.cdit.latent_channels + 1,
-                         "source": "the observed stored frame with depth that overlaps the target view most (the reproject reference's choice)",
+                         "frames": wdata.PlannedLatents.WARP_FRAMES,
+                         "source": "the `frames` observed stored frames with depth that overlap the target view most, best first, "
+                                   "behind one z-buffer (ties to the earlier frame)",
                          "warp": "each source pixel splatted to the target pixel floor(x + 0.5) behind a z-buffer, ties to the earlier "
                                  "pixel; depth 0 is a direction at infinity (rotation only); holes 0 in the [-1, 1] image",
                          "latent": "encoder(image * mask) * latent_scale, then the mask average-pooled by the autoencoder's downsample",
@@ -463,5 +465,11 @@ def warp_cases(data: Path, ae) -> dict[str, np.ndarray]:
     src, dst = np.array(src), np.array(dst)
     warped, mask = warp(src, dst)
     inp = warp_input(ae.encoder, ae.scale, warped, mask, ae.cfg.downsample)
+    # One fused case: every gap's source into the first gap's target, behind one z-buffer.
+    fsrc = (dst[0] - np.array(WARP_GAPS)).clip(0)
+    fused, fmask = forward_warp(torch.from_numpy(rgb[fsrc][None]), torch.from_numpy(depth[fsrc][None].astype(np.int32)), intrinsics,
+                                torch.from_numpy(poses[fsrc][None]), torch.from_numpy(poses[dst[:1]]))
     return {"rgb": rgb[src], "depth_mm": depth[src], "src_c2w": poses[src], "dst_c2w": poses[dst],
-            "warped": warped.numpy(), "mask": mask.numpy().astype(np.uint8), "input": inp.numpy().astype(np.float32)}
+            "warped": warped.numpy(), "mask": mask.numpy().astype(np.uint8), "input": inp.numpy().astype(np.float32),
+            "fused_rgb": rgb[fsrc], "fused_depth_mm": depth[fsrc], "fused_src_c2w": poses[fsrc], "fused_dst_c2w": poses[dst[0]],
+            "fused_warped": fused.numpy()[0], "fused_mask": fmask.numpy()[0].astype(np.uint8)}

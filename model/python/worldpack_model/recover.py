@@ -162,7 +162,8 @@ def check_against_references(model_dir: Path, manifest: dict, cfg: ModelConfig, 
         rates = [s["rate"] for s in layout["slots"]]
         t = lambda k: torch.from_numpy(r[k])
         groups = [tuple(t(f"{k}_r{rate}") for k in context_keys(cfg)) for rate in rates]
-        eps = cdit(t("x_t"), t("timestep"), t("action"), t("rel_time"), groups, rates=tuple(rates)).numpy()
+        warp = t("warp") if cfg.cdit.warp else None
+        eps = cdit(t("x_t"), t("timestep"), t("action"), t("rel_time"), groups, rates=tuple(rates), warp=warp).numpy()
         worst = max(worst, float(np.abs(eps - r["eps"]).max()))
     return worst
 

@@ -21,38 +21,48 @@ SKY_KEY = 1e12  # z-buffer key of a direction at infinity (plus its pixel index)
 
 
 def forward_warp(rgb: torch.Tensor, depth_mm: torch.Tensor, intrinsics: dict, src_c2w: torch.Tensor,
-                 dst_c2w: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """rgb (B, H, W, 3) uint8, depth_mm (B, H, W) integer, c2w poses (B, 4, 4)
-    OpenCV axes. Returns the warped image (B, H, W, 3) uint8 (0 in holes) and
-    the mask (B, H, W) bool of pixels something landed on."""
-    b, h, w, _ = rgb.shape
+                 dst_c2w: torch.Tensor, present: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+    """K stored frames per item warped into the item's target camera behind
+    one z-buffer: rgb (B, K, H, W, 3) uint8, depth_mm (B, K, H, W) integer,
+    src_c2w (B, K, 4, 4), dst_c2w (B, 4, 4), OpenCV axes; `present` (B, K)
+    bool leaves padding frames out. (B, H, W, 3) / (B, H, W) inputs and
+    (B, 4, 4) source poses are one frame per item. Ties go to the earlier
+    frame, then the earlier pixel, as a scan in that order with a strict `<`.
+    Returns the warped image (B, H, W, 3) uint8 (0 in holes) and the mask
+    (B, H, W) bool of pixels something landed on."""
+    if rgb.dim() == 4:
+        rgb, depth_mm, src_c2w = rgb[:, None], depth_mm[:, None], src_c2w[:, None]
+    b, k, h, w, _ = rgb.shape
     dev = rgb.device
-    fx, fy, cx, cy, near = (float(intrinsics[k]) for k in ("fx", "fy", "cx", "cy", "near"))
+    if present is None:
+        present = torch.ones(b, k, dtype=torch.bool, device=dev)
+    fx, fy, cx, cy, near = (float(intrinsics[n]) for n in ("fx", "fy", "cx", "cy", "near"))
     v, u = torch.meshgrid(torch.arange(h, dtype=torch.float64, device=dev),
                           torch.arange(w, dtype=torch.float64, device=dev), indexing="ij")
     d = depth_mm.to(torch.float64) * DEPTH_UNIT_M
     sky = depth_mm == 0
     ray = torch.stack([(u - cx) / fx, (v - cy) / fy, torch.ones_like(u)], dim=-1)  # (H, W, 3), z = 1
-    rs, ts = src_c2w[:, :3, :3].to(torch.float64), src_c2w[:, :3, 3].to(torch.float64)
+    rs, ts = src_c2w[..., :3, :3].to(torch.float64), src_c2w[..., :3, 3].to(torch.float64)
     rd, td = dst_c2w[:, :3, :3].to(torch.float64), dst_c2w[:, :3, 3].to(torch.float64)
     # A surface point: camera -> world -> target camera. A sky direction: rotation only.
-    world = torch.einsum("bij,hwj->bhwi", rs, ray) * d[..., None] + ts[:, None, None, :]
-    surface = torch.einsum("bji,bhwj->bhwi", rd, world - td[:, None, None, :])
-    direction = torch.einsum("bji,bhwj->bhwi", rd, torch.einsum("bij,hwj->bhwi", rs, ray))
+    turned = torch.einsum("bkij,hwj->bkhwi", rs, ray)
+    world = turned * d[..., None] + ts[:, :, None, None, :]
+    surface = torch.einsum("bji,bkhwj->bkhwi", rd, world - td[:, None, None, None, :])
+    direction = torch.einsum("bji,bkhwj->bkhwi", rd, turned)
     q = torch.where(sky[..., None], direction, surface)
     z = q[..., 2]
     ahead = torch.where(sky, z > 1e-9, z > near)
     zs = torch.where(ahead, z, torch.ones_like(z))
     x = torch.floor(fx * q[..., 0] / zs + cx + 0.5)
     y = torch.floor(fy * q[..., 1] / zs + cy + 0.5)
-    ok = ahead & (x >= 0) & (y >= 0) & (x < w) & (y < h)
-    source_index = torch.arange(h * w, dtype=torch.float64, device=dev).view(1, h, w).expand(b, h, w)
-    key = torch.where(sky, SKY_KEY + source_index, z)
-    target = (torch.arange(b, device=dev).view(b, 1, 1) * (h * w) + y.clamp(0, h - 1).long() * w + x.clamp(0, w - 1).long())
-    j, k, idx = target[ok], key[ok], source_index[ok]
-    best = torch.full((b * h * w,), float("inf"), dtype=torch.float64, device=dev).scatter_reduce(0, j, k, "amin")
-    nearest = k == best[j]
-    # Among equal depths, the first source pixel in row-major order wins (as a strict `<` scan does).
+    ok = ahead & (x >= 0) & (y >= 0) & (x < w) & (y < h) & present[:, :, None, None]
+    pixel = torch.arange(h * w, dtype=torch.float64, device=dev).view(1, 1, h, w).expand(b, k, h, w)
+    scan = torch.arange(k, dtype=torch.float64, device=dev).view(1, k, 1, 1) * (h * w) + pixel  # scan order
+    key = torch.where(sky, SKY_KEY + pixel, z)
+    target = (torch.arange(b, device=dev).view(b, 1, 1, 1) * (h * w) + y.clamp(0, h - 1).long() * w + x.clamp(0, w - 1).long())
+    j, kk, idx = target[ok], key[ok], scan[ok]
+    best = torch.full((b * h * w,), float("inf"), dtype=torch.float64, device=dev).scatter_reduce(0, j, kk, "amin")
+    nearest = kk == best[j]
     first = torch.full((b * h * w,), float("inf"), dtype=torch.float64, device=dev)
     first = first.scatter_reduce(0, j[nearest], idx[nearest], "amin")
     win = nearest & (idx == first[j])
@@ -76,9 +86,8 @@ def warp_input(encoder, scale: float, warped: torch.Tensor, mask: torch.Tensor, 
 @torch.no_grad()
 def batch_warp(source, batch, autoencoder, device: torch.device) -> torch.Tensor:
     """The `warp` input for a training batch of `data.PlannedLatents` (rows
-    without a source get an empty warp: zero image, zero coverage)."""
-    rgb, depth, src_pose, dst_pose, has = source.warp_pixels(batch)
+    without a source frame get an empty warp: zero image, zero coverage)."""
+    rgb, depth, src_pose, dst_pose, present = source.warp_pixels(batch)
     t = lambda a: torch.from_numpy(a).to(device)
-    warped, mask = forward_warp(t(rgb), t(depth), source.intrinsics, t(src_pose), t(dst_pose))
-    mask = mask & t(has)[:, None, None]
+    warped, mask = forward_warp(t(rgb), t(depth), source.intrinsics, t(src_pose), t(dst_pose), t(present))
     return warp_input(autoencoder.encoder, autoencoder.scale, warped, mask, autoencoder.cfg.downsample)
