@@ -96,12 +96,15 @@ impl Model {
         }
         let contexts: Vec<&[(String, Tensor)]> = packed.iter().map(|p| p.tensors.as_slice()).collect();
         let mut context = stack(&contexts);
-        let started = Instant::now();
-        if let Some(spec) = &manifest.denoiser.warp {
-            let items: Vec<_> = requests.iter().map(|r| (r.warp, r.target_pose)).collect();
-            context.push((spec.input.clone(), self.warp_input(&items)?));
-        }
-        let warp_ms = started.elapsed().as_secs_f64() * 1e3;
+        let warp_ms = match &manifest.denoiser.warp {
+            Some(spec) => {
+                let started = Instant::now();
+                let items: Vec<_> = requests.iter().map(|r| (r.warp, r.target_pose)).collect();
+                context.push((spec.input.clone(), self.warp_input(&items)?));
+                started.elapsed().as_secs_f64() * 1e3
+            }
+            None => 0.0,
+        };
         let action = Tensor::new(vec![requests.len(), width], actions);
         let rel_time = Tensor::new(vec![requests.len()], packed.iter().map(|p| p.rel_time).collect());
         let seeds: Vec<u64> = requests.iter().map(|r| r.seed).collect();
