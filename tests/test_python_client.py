@@ -146,3 +146,15 @@ def test_refusals_under_load_are_retried_to_success(tmp_path):
     finally:
         proc.terminate()
         proc.wait(timeout=30)
+
+
+def test_an_observing_step_records_the_worlds_frame_and_depth(server):
+    c = Client(server)
+    session = c.create_session(synthetic_seed=3)
+    step = c.step(session, {"forward": True}, observe=True)
+    assert step.raw["source"] == "observed" and step.truth is None
+    depth = c.frame_depth(session, step.index)
+    assert depth.shape == step.image.shape[:2] and depth.max() > 0, "the world's depth comes with the frame"
+    np.testing.assert_array_equal(c.frame_image(session, step.index), step.image)
+    generated = c.step(session, {"forward": True})
+    assert generated.raw["source"] == "generated" and generated.truth["psnr_db"] > 0

@@ -193,10 +193,13 @@ class Client:
         return self.request("POST", f"/v1/sessions/{session}/observe", body)
 
     def step(self, session: int, action: Mapping[str, Any], *, pose: Pose | np.ndarray | None = None,
-             steps: int | None = None, seed: int | None = None, expected_index: int | None = None) -> Step:
+             steps: int | None = None, seed: int | None = None, expected_index: int | None = None,
+             observe: bool = False) -> Step:
         """Generates the next frame. The step is sent with the index its frame
         must get (the session's frame count, asked first when not given), so
-        a retried refusal can never step twice."""
+        a retried refusal can never step twice. With `observe` (synthetic
+        sessions), the world's true frame and depth at the new pose are
+        recorded instead, as a robot's camera would see its exploration."""
         if expected_index is None:
             expected_index = self.session(session)["frames"]
         body: dict[str, Any] = {"action": dict(action), "expected_index": int(expected_index)}
@@ -206,6 +209,8 @@ class Client:
             body["steps"] = int(steps)
         if seed is not None:
             body["seed"] = int(seed)
+        if observe:
+            body["observe"] = True
         r = self.request("POST", f"/v1/sessions/{session}/step", body)
         return Step(index=r["index"], image=decode_image(base64.b64decode(r["image_png"])), pose=pose_matrix(r["pose"]),
                     plan=r["selection"]["plan"], truth=r.get("truth"), timings_ms=r["timings_ms"], raw=r)
