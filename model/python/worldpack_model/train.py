@@ -233,7 +233,9 @@ def train_cdit(data: Path, run: Path, policy: str, steps: int, batch: int, lr: f
     while step < steps and time.time() < deadline:
         drawn = source.batch(rng, batch)
         x0, action, rel_time, groups = augment(drawn, ema)
-        warp_in = batch_warp(source, drawn, encoder, dev) if encoder is not None else None
+        noisy = recipe.pose_noise_translation > 0 or recipe.pose_noise_degrees > 0
+        pose_noise = (recipe.pose_noise_translation, recipe.pose_noise_degrees, augment.gen) if noisy else None
+        warp_in = batch_warp(source, drawn, encoder, dev, pose_noise) if encoder is not None else None
         t = torch.randint(0, cfg.diffusion.timesteps, (batch,), device=dev)
         noise = torch.randn_like(x0)
         ab = alpha_bar[t].view(-1, 1, 1, 1)
