@@ -134,6 +134,13 @@ fn print(r: &Report, o: &Options) {
         let f = |v: Option<f64>| v.map_or("—".into(), |v| format!("{v:.2}"));
         println!("  {:<38} {:>7} / {:>7}", s.name, f(s.psnr_in_warp), f(s.psnr_out_warp));
     }
+    let d = &r.warped_depth;
+    println!(
+        "\nDepth for unseen views: the fused warp of the 3 best observed frames against the true depth: AbsRel {:.3}, δ<1.25 {:.3}, on {:.1}% of the surface pixels",
+        d.abs_rel(),
+        d.delta_1_25(),
+        100.0 * d.coverage()
+    );
     println!("\nPSNR by (task, range):");
     let names: Vec<&String> = r.rows.iter().map(|s| &s.name).collect();
     print!("{:<12} {:>5}", "cell", "n");

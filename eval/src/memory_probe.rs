@@ -13,6 +13,7 @@ use memory::{Policy, PolicyKind};
 use model::{Method, Model, RuntimeOptions, Sampler};
 use serde::Serialize;
 
+use crate::metrics::DepthTally;
 use crate::probe::{FrameScore, Predictor, ProbeError, Row, Settings as ProbeSettings, TrajectoryScores, encode_all, latency_ms, probe_trajectory};
 use crate::program::{ProgramError, load_model, setting, write_atomically};
 use crate::stats::{Interval, cluster_bootstrap, mean_std};
@@ -117,6 +118,8 @@ pub struct Report {
     pub rows: Vec<RowSummary>,
     pub contrasts: Vec<Contrast>,
     pub cells: Vec<Cell>,
+    /// The depth the fused warp of the 3 best observed frames gives each target, against its true depth.
+    pub warped_depth: DepthTally,
 }
 
 pub fn probe(o: &Settings, progress: &dyn Fn(Progress)) -> Result<Report, ProgramError> {
@@ -217,6 +220,8 @@ pub fn probe(o: &Settings, progress: &dyn Fn(Progress)) -> Result<Report, Progra
             "rows": report.rows,
             "contrasts": report.contrasts,
             "cells": report.cells,
+            "warped_depth": { "abs_rel": report.warped_depth.abs_rel(), "delta_1_25": report.warped_depth.delta_1_25(),
+                              "coverage": report.warped_depth.coverage(), "tally": report.warped_depth },
             "trajectories": all,
         });
         write_atomically(path, &serde_json::to_string(&json)?)?;
@@ -345,7 +350,9 @@ fn summarise(rows: &[Row], row_models: &[Option<(&Model, usize)>], latencies: &[
             }
         })
         .collect();
-    Report { rows: summaries, contrasts, cells }
+    let mut warped_depth = DepthTally::default();
+    all.iter().for_each(|t| warped_depth.add(&t.warped_depth));
+    Report { rows: summaries, contrasts, cells, warped_depth }
 }
 
 
@@ -368,6 +375,7 @@ mod tests {
                     dir: format!("t{i}"),
                     task: task.into(),
                     range: 5,
+                    warped_depth: Default::default(),
                     rows: vec![
                         base.iter().enumerate().map(|(t, &p)| score(t, p)).collect(),
                         base.iter().enumerate().map(|(t, &p)| score(t, p + gain)).collect(),

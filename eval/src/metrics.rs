@@ -19,6 +19,62 @@ pub fn psnr(a: &[u8], b: &[u8]) -> f64 {
     if mse == 0.0 { PSNR_CAP_DB } else { (10.0 * (255.0 * 255.0 / mse).log10()).min(PSNR_CAP_DB) }
 }
 
+/// How well a depth map made by warping matches the true one, summed over
+/// pixels where both see a surface (sky and holes left out), so tallies add.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct DepthTally {
+    /// Pixels of the true depth map that see a surface.
+    pub surface_pixels: usize,
+    /// Of those, where the warp put a surface too.
+    pub compared: usize,
+    pub abs_rel_sum: f64,
+    /// Compared pixels with max(d/d*, d*/d) < 1.25.
+    pub within_1_25: usize,
+}
+
+impl DepthTally {
+    /// `predicted` in metres (0: nothing, infinity: sky) against `truth_mm` (0: nothing within range).
+    pub fn of(predicted: &[f64], truth_mm: &[u16]) -> DepthTally {
+        let mut t = DepthTally::default();
+        for (&d, &g) in predicted.iter().zip(truth_mm) {
+            if g == 0 {
+                continue;
+            }
+            t.surface_pixels += 1;
+            if !(d > 0.0 && d.is_finite()) {
+                continue;
+            }
+            let g = g as f64 * 1e-3;
+            t.compared += 1;
+            t.abs_rel_sum += (d - g).abs() / g;
+            t.within_1_25 += usize::from((d / g).max(g / d) < 1.25);
+        }
+        t
+    }
+
+    pub fn add(&mut self, other: &DepthTally) {
+        self.surface_pixels += other.surface_pixels;
+        self.compared += other.compared;
+        self.abs_rel_sum += other.abs_rel_sum;
+        self.within_1_25 += other.within_1_25;
+    }
+
+    /// Mean |d − d*| / d* over the compared pixels.
+    pub fn abs_rel(&self) -> f64 {
+        self.abs_rel_sum / self.compared.max(1) as f64
+    }
+
+    /// The share of compared pixels within a factor 1.25 of the truth.
+    pub fn delta_1_25(&self) -> f64 {
+        self.within_1_25 as f64 / self.compared.max(1) as f64
+    }
+
+    /// The share of the truth's surface pixels the warp gives a depth for.
+    pub fn coverage(&self) -> f64 {
+        self.compared as f64 / self.surface_pixels.max(1) as f64
+    }
+}
+
 /// PSNR over the pixels whose `mask` entry equals `inside` (RGB images,
 /// one mask entry per pixel); `None` when fewer than `min_pixels` qualify.
 pub fn psnr_where(a: &[u8], b: &[u8], mask: &[bool], inside: bool, min_pixels: usize) -> Option<f64> {
@@ -131,6 +187,17 @@ pub fn ssim(a: &[u8], b: &[u8], width: usize, height: usize) -> Option<f64> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn depth_tallies_leave_out_sky_and_holes_and_add_up() {
+        // Truth: sky, 2 m, 4 m, 10 m. Warp: a surface where there is sky, a hole, 2.4 m (AbsRel 0.4), 10 m.
+        let t = DepthTally::of(&[3.0, 0.0, 2.4, 10.0], &[0, 2000, 4000, 10000]);
+        assert_eq!((t.surface_pixels, t.compared, t.within_1_25), (3, 2, 1));
+        assert!((t.abs_rel() - 0.2).abs() < 1e-12 && (t.delta_1_25() - 0.5).abs() < 1e-12);
+        let mut sum = t;
+        sum.add(&t);
+        assert_eq!((sum.compared, sum.coverage()), (4, 4.0 / 6.0));
+    }
 
     #[test]
     fn psnr_where_scores_only_its_side_of_the_mask() {

@@ -9,11 +9,11 @@ use std::time::Instant;
 use memory::{ContextPlan, FrameMemory, MemoryFrame, Policy};
 use model::generate::frame_to_tensor;
 use model::pack::ContextFrame;
-use model::warp::forward_warp_many;
+use model::warp::{Warped, forward_warp_many};
 use model::{Model, ModelError, Request, Sampler, Tensor, WarpSource};
 use serde::Serialize;
 
-use crate::metrics::{psnr, psnr_where, sharpness_ratio, ssim};
+use crate::metrics::{DepthTally, psnr, psnr_where, sharpness_ratio, ssim};
 use crate::reproject::{reproject, reproject_fused};
 use crate::suite::{SuiteError, Trajectory};
 
@@ -110,6 +110,8 @@ pub struct TrajectoryScores {
     pub task: String,
     pub range: i32,
     pub rows: Vec<Vec<FrameScore>>,
+    /// The fused warp's depth (the validity mask's) against the true depth of every target.
+    pub warped_depth: DepthTally,
 }
 
 pub struct Settings {
@@ -179,14 +181,16 @@ pub fn warp_policy(m: &Model) -> Option<Policy> {
     m.manifest().denoiser.warp.as_ref().map(|w| Policy::best_overlap_frames(w.frames))
 }
 
-/// The probe's validity mask of target `t`: the pixels the fused warp of
-/// `plan`'s frames (the best-overlap observed ones) covers; none without a frame.
-pub fn validity_mask(traj: &Trajectory, plan: &ContextPlan, t: usize) -> Vec<bool> {
+/// The fused warp of `plan`'s frames (the best-overlap observed ones) into
+/// target `t`: its mask is the probe's validity mask, its depth a depth for
+/// `t` made without seeing it. Empty (no pixel) without a frame.
+pub fn fused_warp(traj: &Trajectory, plan: &ContextPlan, t: usize) -> Warped {
     let sources = warp_sources(traj, plan);
     if sources.is_empty() {
-        return vec![false; traj.intrinsics.width as usize * traj.intrinsics.height as usize];
+        let n = traj.intrinsics.width as usize * traj.intrinsics.height as usize;
+        return Warped { rgb: vec![0; 3 * n], mask: vec![false; n], depth: vec![0.0; n] };
     }
-    forward_warp_many(&sources, &traj.poses[t]).expect("suite frames match their intrinsics").mask
+    forward_warp_many(&sources, &traj.poses[t]).expect("suite frames match their intrinsics")
 }
 
 /// A side of the validity mask is scored only when it holds at least this
@@ -283,7 +287,16 @@ pub fn probe_trajectory(
     let mask_plans = plans.pop().expect("the validity mask's plans");
     let warp_plans: Vec<Vec<ContextPlan>> = warp_policies.iter().map(|p| if p.is_some() { warp_plans.next().unwrap_or_default() } else { Vec::new() }).collect();
     let (w, h) = (traj.intrinsics.width as usize, traj.intrinsics.height as usize);
-    let masks: HashMap<usize, Vec<bool>> = targets.iter().zip(&mask_plans).map(|(&t, p)| (t, validity_mask(traj, p, t))).collect();
+    let mut warped_depth = DepthTally::default();
+    let masks: HashMap<usize, Vec<bool>> = targets
+        .iter()
+        .zip(&mask_plans)
+        .map(|(&t, p)| {
+            let warped = fused_warp(traj, p, t);
+            warped_depth.add(&DepthTally::of(&warped.depth, traj.depth(t)));
+            (t, warped.mask)
+        })
+        .collect();
     let score = |t: usize, predicted: &[u8]| {
         let truth = traj.frame(t);
         let mask = &masks[&t];
@@ -321,7 +334,7 @@ pub fn probe_trajectory(
         }
         scores.push(out);
     }
-    Ok(TrajectoryScores { dir: traj.entry.dir.clone(), task: traj.entry.task.clone(), range: traj.entry.range, rows: scores })
+    Ok(TrajectoryScores { dir: traj.entry.dir.clone(), task: traj.entry.task.clone(), range: traj.entry.range, rows: scores, warped_depth })
 }
 
 /// Untimed predictions before the timed ones: a model's first batch-1 calls

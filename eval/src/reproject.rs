@@ -132,7 +132,7 @@ mod tests {
 
     #[test]
     fn cracks_are_filled_from_their_neighbours() {
-        let mut w = Warped { rgb: vec![100; 3 * 9], mask: vec![true; 9] };
+        let mut w = Warped { rgb: vec![100; 3 * 9], mask: vec![true; 9], depth: vec![1.0; 9] };
         w.mask[4] = false;
         w.rgb[12..15].copy_from_slice(&[0, 0, 0]);
         fill_from_neighbours(&mut w, 3, 3, 1);

@@ -853,6 +853,7 @@ mod tests {
                 dir: format!("t{i}"),
                 task: "aba".into(),
                 range: 5,
+                warped_depth: Default::default(),
                 rows: rows
                     .iter()
                     .map(|&p| [10, 20].iter().map(|&t| FrameScore { t, psnr: p + i as f64, ssim: 0.5, lpips: None, dreamsim: None, sharpness: None, psnr_in_warp: None, psnr_out_warp: None }).collect())

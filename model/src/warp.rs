@@ -25,11 +25,15 @@ pub struct WarpSource<'a> {
     pub intrinsics: &'a Intrinsics,
 }
 
-/// A warped frame: RGB (0 in holes) and which pixels something landed on.
+/// A warped frame: RGB (0 in holes), which pixels something landed on, and
+/// the depth of what landed (metres along the target's optical axis;
+/// infinity for sky, 0 in holes): a generated view's depth, made from the
+/// observed frames' own.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Warped {
     pub rgb: Vec<u8>,
     pub mask: Vec<bool>,
+    pub depth: Vec<f64>,
 }
 
 impl Warped {
@@ -54,7 +58,7 @@ pub fn forward_warp_many(sources: &[WarpSource], dst: &Pose) -> Result<Warped, M
     let Some(first) = sources.first() else { return Err(ModelError::input("warp", "no frame to warp")) };
     let (w, h) = (first.intrinsics.width as usize, first.intrinsics.height as usize);
     let mut key = vec![f64::INFINITY; w * h];
-    let mut out = Warped { rgb: vec![0; w * h * 3], mask: vec![false; w * h] };
+    let mut out = Warped { rgb: vec![0; w * h * 3], mask: vec![false; w * h], depth: vec![0.0; w * h] };
     for src in sources {
         let k = src.intrinsics;
         if (k.width as usize, k.height as usize) != (w, h) {
@@ -104,6 +108,7 @@ fn splat(src: &WarpSource, dst: &Pose, key: &mut [f64], out: &mut Warped) -> Res
                 key[j] = depth_key;
                 out.rgb[3 * j..3 * j + 3].copy_from_slice(&src.rgb[3 * i..3 * i + 3]);
                 out.mask[j] = true;
+                out.depth[j] = if sky { f64::INFINITY } else { q.z };
             }
         }
     }
@@ -170,6 +175,7 @@ mod tests {
         let out = forward_warp(&src, &pose).unwrap();
         assert_eq!(out.rgb, rgb);
         assert_eq!(out.coverage(), 1.0);
+        assert_eq!((out.depth[0], out.depth[20 * 32]), (f64::INFINITY, 5.0), "sky at infinity, the wall where it was");
     }
 
     #[test]
