@@ -72,6 +72,10 @@ pub struct Options {
     /// Frames per row of the strip, evenly spaced over the return leg.
     #[arg(long, default_value_t = 10, value_parser = count(1, 100))]
     pub strip_frames: usize,
+    /// A model row whose predictions fill the fused warp's holes in a composite row
+    /// (repeatable; default: the baseline, the composite reference).
+    #[arg(long = "composite")]
+    pub composites: Vec<String>,
 }
 
 impl Options {
@@ -96,6 +100,7 @@ impl Options {
             against: self.against.clone(),
             strip: self.strip.clone(),
             strip_frames: self.strip_frames,
+            composites: self.composites.clone(),
         }
     }
 }

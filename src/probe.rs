@@ -5,7 +5,7 @@ use std::cell::RefCell;
 use std::path::PathBuf;
 
 use anyhow::Result;
-use eval::memory_probe::{COPY, KEEP_LAST, Progress, REPROJECT, REPROJECT_FUSED, Report, SELECTION_CONTROL, Settings, probe};
+use eval::memory_probe::{COMPOSITE, COPY, KEEP_LAST, Progress, REPROJECT, REPROJECT_FUSED, Report, SELECTION_CONTROL, Settings, probe};
 use eval::stats::Interval;
 use indicatif::ProgressBar;
 
@@ -51,6 +51,10 @@ pub struct Options {
     /// Another paired contrast, as A:B (row names; A minus B), beyond the standard ones.
     #[arg(long = "contrast", value_parser = parse_contrast)]
     pub contrasts: Vec<(String, String)>,
+    /// A model (variant or --extra name) whose predictions fill the fused warp's holes in a
+    /// composite row "NAME, warp overlaid" (repeatable; the baseline's is always there).
+    #[arg(long = "composite")]
+    pub composites: Vec<String>,
 }
 
 fn parse_contrast(s: &str) -> Result<(String, String), String> {
@@ -76,6 +80,7 @@ impl Options {
             runtime: self.runtime.options(),
             out: self.out.clone(),
             contrasts: self.contrasts.clone(),
+            composites: self.composites.clone(),
         }
     }
 }
@@ -168,6 +173,7 @@ fn short(name: &str) -> String {
         COPY => "copy".into(),
         REPROJECT => "reproject".into(),
         REPROJECT_FUSED => "reproject x3".into(),
+        COMPOSITE => "composite".into(),
         n => n.chars().take(14).collect(),
     }
 }

@@ -78,6 +78,7 @@ impl Options {
             runtime: self.runtime.options(),
             out: None,
             contrasts: Vec::new(),
+            composites: Vec::new(),
         };
         Settings { probe, vo: self.vo.clone(), quick: self.quick, rollout_frames: self.rollout_frames, out: self.out.clone() }
     }

@@ -59,6 +59,9 @@ pub struct Settings {
     pub strip: Vec<String>,
     /// Frames per row of the picture, evenly spaced over the return leg.
     pub strip_frames: usize,
+    /// Model rows whose predictions fill the fused warp's holes in a
+    /// composite row each (with the references; empty: the baseline).
+    pub composites: Vec<String>,
 }
 
 /// What the run is doing, for a progress display.
@@ -89,6 +92,7 @@ pub fn row_label(name: &str) -> String {
         "copy" => "copy best-overlap observed frame".into(),
         "reproject" => "reproject it with depth".into(),
         "reproject_fused" => format!("reproject the {} best frames, fused", crate::probe::FUSED_FRAMES),
+        "composite" => "fused warp, baseline in its holes".into(),
         _ => memory::variant(name).map_or_else(|_| name.to_string(), |v| v.label.to_string()),
     }
 }
@@ -235,6 +239,20 @@ pub fn evaluate(s: &Settings, progress: &dyn Fn(Progress)) -> Result<Evaluation,
         rows.push((Row { name: "copy".into(), predictor: Predictor::Copy }, None));
         rows.push((Row { name: "reproject".into(), predictor: Predictor::Reproject }, None));
         rows.push((Row { name: "reproject_fused".into(), predictor: Predictor::ReprojectFused }, None));
+        // Composite rows: the fused warp where it lands, a model row's prediction in its holes
+        // (the composite reference uses the 4-frame baseline's).
+        let wanted: Vec<String> = if s.composites.is_empty() { vec!["baseline".into()] } else { s.composites.clone() };
+        for name in wanted {
+            let Some((Predictor::Model { model, policy, .. }, m)) = rows.iter().find(|(r, _)| r.name == name).map(|(r, m)| (&r.predictor, *m)) else {
+                if s.composites.is_empty() {
+                    continue; // no baseline row: no default composite
+                }
+                return Err(setting("--composite", format!("no model row called {name:?}")));
+            };
+            let predictor = Predictor::Composite { model, policy: policy.clone(), sampler: sampler(model)? };
+            let label = if name == "baseline" { "composite".to_string() } else { format!("composite_{name}") };
+            rows.push((Row { name: label, predictor }, m));
+        }
     }
     let against = s.against.clone().unwrap_or_else(|| rows[0].0.name.clone());
     for (field, name) in std::iter::once(("--against", &against)).chain(s.strip.iter().map(|n| ("--strip", n))) {
@@ -262,7 +280,7 @@ pub fn evaluate(s: &Settings, progress: &dyn Fn(Progress)) -> Result<Evaluation,
             generated_level: s.generated_level,
             noise_seeding: "per frame".into(),
             scores: SCORES.into(),
-            reference: m.is_none().then(|| crate::probe::REFERENCE_RULES.to_string()),
+            reference: (!matches!(row.predictor, Predictor::Model { .. })).then(|| crate::probe::REFERENCE_RULES.to_string()),
             feature_networks: networks.clone(),
         };
         let path = rows_dir.join(format!("{}.json", row.name));

@@ -33,6 +33,7 @@ pub const KEEP_LAST: &str = "worldpack weights, newest frame kept";
 pub const COPY: &str = "copy best-overlap frame";
 pub const REPROJECT: &str = "reproject best-overlap frame";
 pub const REPROJECT_FUSED: &str = "reproject 3 best frames, fused";
+pub const COMPOSITE: &str = "fused warp, baseline in its holes";
 
 /// What one probe run does; `worldpack probe`'s flags, one field each.
 #[derive(Clone, Debug)]
@@ -58,6 +59,9 @@ pub struct Settings {
     pub out: Option<PathBuf>,
     /// More paired contrasts (row a minus row b, by name) beyond the standard ones.
     pub contrasts: Vec<(String, String)>,
+    /// Model rows whose predictions fill the fused warp's holes in a
+    /// composite row each, beyond the baseline's (the composite reference).
+    pub composites: Vec<String>,
 }
 
 /// What the run is doing, for a progress display.
@@ -176,6 +180,14 @@ pub fn probe(o: &Settings, progress: &dyn Fn(Progress)) -> Result<Report, Progra
     rows.push(Row { name: REPROJECT.into(), predictor: Predictor::Reproject });
     rows.push(Row { name: REPROJECT_FUSED.into(), predictor: Predictor::ReprojectFused });
     row_models.extend([None, None, None]);
+    for name in std::iter::once("baseline").chain(o.composites.iter().map(String::as_str)) {
+        let Some((_, policy, m)) = models.iter().find(|m| m.0 == name) else {
+            return Err(setting("--composite", format!("no model called {name:?} (the variants and the --extra names)")));
+        };
+        let label = if name == "baseline" { COMPOSITE.to_string() } else { format!("{name}, warp overlaid") };
+        rows.push(Row { name: label, predictor: Predictor::Composite { model: m, policy: policy.clone(), sampler: sampler_for(m, o.steps)? } });
+        row_models.push(Some((m, o.steps)));
+    }
     for (a, b) in &o.contrasts {
         for name in [a, b] {
             if !rows.iter().any(|r| &r.name == name) {
@@ -194,7 +206,7 @@ pub fn probe(o: &Settings, progress: &dyn Fn(Progress)) -> Result<Report, Progra
     let mut first_latents = latent_cache(&trajectories[0]);
     for row in &rows {
         let latents = match &row.predictor {
-            Predictor::Model { model, .. } => first_latents(model)?,
+            Predictor::Model { model, .. } | Predictor::Composite { model, .. } => first_latents(model)?,
             _ => Rc::default(),
         };
         latencies.push(latency_ms(&trajectories[0], row, &latents, o.latency_calls)?);

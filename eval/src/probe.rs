@@ -6,7 +6,7 @@
 use std::collections::HashMap;
 use std::time::Instant;
 
-use memory::{ContextPlan, FrameMemory, MemoryFrame, Policy};
+use memory::{ContextPlan, FrameMemory, Intrinsics, MemoryFrame, Policy};
 use model::generate::frame_to_tensor;
 use model::pack::ContextFrame;
 use model::warp::{Warped, forward_warp_many};
@@ -39,6 +39,19 @@ pub enum Predictor<'a> {
     /// The [`FUSED_FRAMES`] frames of largest overlap warped behind one
     /// z-buffer, cracks filled from their neighbours.
     ReprojectFused,
+    /// The composite reference: that fused warp where it lands (no filling),
+    /// a model's prediction in its holes.
+    Composite { model: &'a Model, policy: Policy, sampler: Sampler },
+}
+
+/// `image` with the warp's pixels wherever something landed.
+pub fn overlay(mut image: Vec<u8>, warped: &Warped) -> Vec<u8> {
+    for (p, &m) in warped.mask.iter().enumerate() {
+        if m {
+            image[3 * p..3 * p + 3].copy_from_slice(&warped.rgb[3 * p..3 * p + 3]);
+        }
+    }
+    image
 }
 
 /// Frames the fused reference warps together.
@@ -51,7 +64,7 @@ impl Predictor<'_> {
     /// The memory policy a row selects with (references: the best-overlap frames).
     pub fn policy(&self) -> Policy {
         match self {
-            Predictor::Model { policy, .. } => policy.clone(),
+            Predictor::Model { policy, .. } | Predictor::Composite { policy, .. } => policy.clone(),
             Predictor::Copy | Predictor::Reproject => Policy::best_overlap(),
             Predictor::ReprojectFused => Policy::best_overlap_frames(FUSED_FRAMES),
         }
@@ -148,22 +161,26 @@ fn plans(traj: &Trajectory, policies: &[&Policy], targets: &[usize]) -> Result<V
 
 /// The scaled latents of every frame of `traj`.
 pub fn encode_all(m: &Model, traj: &Trajectory) -> Result<Vec<Vec<f32>>, ProbeError> {
-    let img = &m.manifest().image;
-    let k = &traj.intrinsics;
+    let frames: Vec<&[u8]> = (0..traj.len()).map(|t| traj.frame(t)).collect();
     let mut latents = Vec::with_capacity(traj.len());
-    for chunk in (0..traj.len()).collect::<Vec<_>>().chunks(32) {
-        let tensors = chunk
-            .iter()
-            .map(|&t| frame_to_tensor(traj.frame(t), k.width, k.height, k, img.width as u32, img.height as u32).map(|p| p.0))
-            .collect::<Result<Vec<_>, _>>()?;
-        let mut shape = tensors[0].shape.clone();
-        shape[0] = tensors.len();
-        let batch = Tensor::new(shape, tensors.into_iter().flat_map(|t| t.data).collect());
-        let out = m.encode(&batch)?;
-        let per = out.data.len() / chunk.len();
-        latents.extend(out.data.chunks_exact(per).map(<[f32]>::to_vec));
+    for chunk in frames.chunks(32) {
+        latents.extend(encode_frames(m, chunk, &traj.intrinsics)?);
     }
     Ok(latents)
+}
+
+/// The scaled latents of RGB frames taken with intrinsics `k`, in one encoder call.
+pub fn encode_frames(m: &Model, frames: &[&[u8]], k: &Intrinsics) -> Result<Vec<Vec<f32>>, ProbeError> {
+    let img = &m.manifest().image;
+    let tensors = frames
+        .iter()
+        .map(|f| frame_to_tensor(f, k.width, k.height, k, img.width as u32, img.height as u32).map(|p| p.0))
+        .collect::<Result<Vec<_>, _>>()?;
+    let mut shape = tensors[0].shape.clone();
+    shape[0] = tensors.len();
+    let out = m.encode(&Tensor::new(shape, tensors.into_iter().flat_map(|t| t.data).collect()))?;
+    let per = out.data.len() / frames.len().max(1);
+    Ok(out.data.chunks_exact(per).map(<[f32]>::to_vec).collect())
 }
 
 /// The frames of a `Policy::best_overlap_frames` plan (the observed frames
@@ -274,7 +291,13 @@ pub fn probe_trajectory(
     let targets = traj.return_frames(settings.stride);
     // Each row's plans, then the validity mask's frames, then each geometry
     // row's warp sources (empty plans for other rows).
-    let warp_policies: Vec<Option<Policy>> = rows.iter().map(|r| if let Predictor::Model { model, .. } = &r.predictor { warp_policy(model) } else { None }).collect();
+    let warp_policies: Vec<Option<Policy>> = rows
+        .iter()
+        .map(|r| match &r.predictor {
+            Predictor::Model { model, .. } | Predictor::Composite { model, .. } => warp_policy(model),
+            _ => None,
+        })
+        .collect();
     let owned: Vec<Policy> = rows
         .iter()
         .map(|r| r.predictor.policy())
@@ -288,18 +311,18 @@ pub fn probe_trajectory(
     let warp_plans: Vec<Vec<ContextPlan>> = warp_policies.iter().map(|p| if p.is_some() { warp_plans.next().unwrap_or_default() } else { Vec::new() }).collect();
     let (w, h) = (traj.intrinsics.width as usize, traj.intrinsics.height as usize);
     let mut warped_depth = DepthTally::default();
-    let masks: HashMap<usize, Vec<bool>> = targets
+    let fused: HashMap<usize, Warped> = targets
         .iter()
         .zip(&mask_plans)
         .map(|(&t, p)| {
             let warped = fused_warp(traj, p, t);
             warped_depth.add(&DepthTally::of(&warped.depth, traj.depth(t)));
-            (t, warped.mask)
+            (t, warped)
         })
         .collect();
     let score = |t: usize, predicted: &[u8]| {
         let truth = traj.frame(t);
-        let mask = &masks[&t];
+        let mask = &fused[&t].mask;
         FrameScore {
             psnr_in_warp: psnr_where(predicted, truth, mask, true, MASK_MIN_PIXELS),
             psnr_out_warp: psnr_where(predicted, truth, mask, false, MASK_MIN_PIXELS),
@@ -310,7 +333,8 @@ pub fn probe_trajectory(
     for (row_index, (row, plans)) in rows.iter().zip(&plans).enumerate() {
         let mut out = Vec::with_capacity(targets.len());
         match &row.predictor {
-            Predictor::Model { model, policy, sampler } => {
+            Predictor::Model { model, policy, sampler } | Predictor::Composite { model, policy, sampler } => {
+                let composite = matches!(row.predictor, Predictor::Composite { .. });
                 let latents = latents_for(model)?;
                 if (model.manifest().image.width, model.manifest().image.height) != (w, h) {
                     return Err(ProbeError::Invalid(format!(
@@ -321,6 +345,7 @@ pub fn probe_trajectory(
                     )));
                 }
                 predict_model(model, policy, sampler, traj, &latents, &targets, plans, &warp_plans[row_index], settings, |t, img| {
+                    let img = if composite { overlay(img, &fused[&t]) } else { img };
                     out.push(score(t, &img));
                     progress(1);
                 })?;
@@ -360,8 +385,9 @@ pub fn latency_ms(traj: &Trajectory, row: &Row, latents: &[Vec<f32>], calls: usi
             let start = Instant::now();
             let (plan, _) = store.select(&policy, &frusta[t], None);
             match &row.predictor {
-                Predictor::Model { model, policy, sampler } => {
+                Predictor::Model { model, policy, sampler } | Predictor::Composite { model, policy, sampler } => {
                     // A geometry model's warp sources are chosen within the timed call too.
+                    // (A composite's overlay is not timed: it costs what the fused reference does.)
                     let source = warp_policy(model).map_or_else(|| plan.clone(), |p| store.select(&p, &frusta[t], None).0);
                     predict_model(model, policy, sampler, traj, latents, &[t], &[plan], &[source], &settings, |_, img| {
                         std::hint::black_box(img);

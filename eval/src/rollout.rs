@@ -4,12 +4,12 @@
 //! joining the memory that later frames select from. Trajectories run in
 //! lockstep so one denoiser call serves a whole batch of them.
 
-use memory::{ContextPlan, FrameMemory, Frustum, MemoryFrame};
+use memory::{ContextPlan, FrameMemory, Frustum, MemoryFrame, Policy};
 use model::pack::ContextFrame;
 use model::{Request, WarpSource};
 
 use crate::features::{Embedding, FeatureError, Lpips, VideoFeatures, frechet_distance};
-use crate::probe::{FrameScore, Predictor, ProbeError, Row, reference_image, warp_sources};
+use crate::probe::{FUSED_FRAMES, FrameScore, Predictor, ProbeError, Row, encode_frames, fused_warp, overlay, reference_image, warp_sources};
 use crate::suite::Trajectory;
 
 /// The frames a rollout generates: the return leg, from the returning point,
@@ -116,10 +116,12 @@ pub fn rollout_as(
             let (scores, frames) = trajs.iter().map(|t| reference(t, &row.predictor, max_frames, scorer, progress)).collect::<Result<Vec<_>, _>>()?.into_iter().unzip();
             Ok(RowOutput { scores, frames })
         }
-        Predictor::Model { model, policy, sampler } => {
+        Predictor::Model { model, policy, sampler } | Predictor::Composite { model, policy, sampler } => {
             model.layout_for(&policy.packing)?; // before any work: a policy the model cannot take fails at once
             let warp_policy = crate::probe::warp_policy(model);
-            let warps = warp_policy.is_some();
+            // A composite overlays the fused warp of the best observed frames and re-encodes the result.
+            let composite = matches!(row.predictor, Predictor::Composite { .. }).then(|| Policy::best_overlap_frames(FUSED_FRAMES));
+            let warps = warp_policy.is_some() || composite.is_some();
             let mut runs = trajs
                 .iter()
                 .zip(observed_latents)
@@ -179,8 +181,20 @@ pub fn rollout_as(
                         let generated = id as usize >= r.traj.entry.returning_point.clamp(1, r.traj.len());
                         r.latents.get(id as usize).map(|l| ContextFrame { latent: l, time: id, pose: &r.traj.poses[id as usize], generated })
                     };
-                    let prediction = model.predict(&policy.packing, &requests, &frame, sampler)?;
+                    let mut prediction = model.predict(&policy.packing, &requests, &frame, sampler)?;
                     drop(requests);
+                    if let Some(fused) = &composite {
+                        for (&i, p) in chunk.iter().zip(&mut prediction.frames) {
+                            let r = &runs[i];
+                            let plan = r.observed.select(fused, &r.frusta[r.next], None).0;
+                            p.rgb = overlay(std::mem::take(&mut p.rgb), &fused_warp(r.traj, &plan, r.next));
+                        }
+                        let images: Vec<&[u8]> = prediction.frames.iter().map(|p| p.rgb.as_slice()).collect();
+                        let latents = encode_frames(model, &images, &runs[chunk[0]].traj.intrinsics)?;
+                        for (p, latent) in prediction.frames.iter_mut().zip(latents) {
+                            p.latent = latent;
+                        }
+                    }
                     for (&i, p) in chunk.iter().zip(prediction.frames) {
                         let r = &mut runs[i];
                         let t = r.next;
