@@ -53,7 +53,10 @@ fn reduced_rollout_suite_runs_resumes_and_scores_every_frame() {
     let first = json(&out.join("results.json"));
     strip_shows_the_scored_frames(&first, &out.join("strip.png"));
     let rows: Vec<&str> = first["rows"].as_array().unwrap().iter().map(|r| r["name"].as_str().unwrap()).collect();
-    assert_eq!(rows, ["baseline", "nearest_frame_packing", "memory_retrieval", "worldpack", "worldmem_greedy", "worldpack_keep_last", "copy", "reproject"]);
+    assert_eq!(
+        rows,
+        ["baseline", "nearest_frame_packing", "memory_retrieval", "worldpack", "worldmem_greedy", "worldpack_keep_last", "copy", "reproject", "reproject_fused", "composite"]
+    );
     let trajectories = first["trajectories"].as_array().unwrap();
     assert_eq!(trajectories.len(), 2);
     for (name, per_traj) in first["per_frame"].as_object().unwrap() {
@@ -93,7 +96,7 @@ fn reduced_rollout_suite_runs_resumes_and_scores_every_frame() {
 
     // A second run reuses every row and reproduces the results.
     let log = ok(&args);
-    assert_eq!(log.matches("reusing").count(), 8, "{log}");
+    assert_eq!(log.matches("reusing").count(), 10, "{log}");
     let second = json(&out.join("results.json"));
     assert_eq!(first["cells"], second["cells"]);
     // Other settings are not confused with saved rows.
@@ -198,7 +201,7 @@ fn probe_compares_every_row_with_the_baseline() {
     let names: Vec<&str> = rows.iter().map(|r| r["name"].as_str().unwrap()).collect();
     assert_eq!(names, ["baseline", "nearest_frame_packing", "memory_retrieval", "worldpack", "worldpack_keep_last",
         "worldpack weights, recency contexts", "worldpack weights, newest frame kept", "worldpack, 1 steps",
-        "copy best-overlap frame", "reproject best-overlap frame"]);
+        "copy best-overlap frame", "reproject best-overlap frame", "reproject 3 best frames, fused", "fused warp, baseline in its holes"]);
     let frames = rows[0]["frames"].as_u64().unwrap();
     assert!(frames > 0);
     for r in rows {
@@ -215,6 +218,15 @@ fn probe_compares_every_row_with_the_baseline() {
         assert!((direct - mean).abs() < 1e-9, "{}: paired mean {mean} vs difference of means {direct}", r["name"]);
     }
     assert_eq!(report["contrasts"].as_array().unwrap().len(), 6);
+    // Inside the validity mask the composite shows the fused warp's own pixels, as the fused reference does;
+    // outside, one shows the baseline's prediction and the other filled cracks and the best frame's pixels.
+    let row = |name: &str| rows.iter().find(|r| r["name"] == name).unwrap();
+    let (fused, composite) = (row("reproject 3 best frames, fused"), row("fused warp, baseline in its holes"));
+    assert_eq!(fused["psnr_in_warp"].as_f64(), composite["psnr_in_warp"].as_f64());
+    assert_ne!(fused["psnr_out_warp"].as_f64(), composite["psnr_out_warp"].as_f64());
+    let depth = &report["warped_depth"];
+    let (abs_rel, coverage) = (depth["abs_rel"].as_f64().unwrap(), depth["coverage"].as_f64().unwrap());
+    assert!(abs_rel > 0.0 && abs_rel < 0.5 && coverage > 0.05 && coverage <= 1.0, "warped depth: {depth}");
     let _ = std::fs::remove_dir_all(&suite);
     let _ = std::fs::remove_dir_all(out.parent().unwrap());
 }

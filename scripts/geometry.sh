@@ -1,0 +1,57 @@
+#!/usr/bin/env bash
+# The geometry model (docs/geometry.md): WorldPack with the recipe, fine-tuned
+# with the best-overlap observed frames warped into the target view as an
+# input, then measured where the rollout issue measures (the 48-trajectory
+# test suite), in the one-step probe (inside and outside the warp's
+# validity mask, against the fused and composite references) and on the
+# REST walk. Resumable: each stage continues or reuses what is done.
+#   ./scripts/recipe.sh prepare            # first: data/train120, data/val, data/loopnav-test, runs/base
+#   ./scripts/geometry.sh train            # STEPS (8000 in all, from the recipe's 2,337), MINUTES
+#   ./scripts/geometry.sh export           # -> fixtures/variants/worldpack_geometry
+#   ./scripts/geometry.sh eval | probe | walk
+set -euo pipefail
+cd "$(dirname "$0")/.."
+run="${RUN:-runs/geo}"
+out="${OUT:-fixtures/variants/worldpack_geometry}"
+steps="${STEPS:-8000}"
+threads="${THREADS:-1}"
+bin=target/release/worldpack
+geo="worldpack_geometry=$out"
+recipe=fixtures/variants/worldpack_recipe
+
+case "${1:-}" in
+  train)
+    mkdir -p "$run"
+    [ -f runs/wp_recipe/cdit-worldpack.pt ] || ./scripts/model.sh recover --model "$recipe" --run runs/wp_recipe
+    [ -e "$run/latents" ] || ln -s "$PWD/runs/base/latents" "$run/latents"
+    [ -e "$run/autoencoder.pt" ] || ln -s "$PWD/runs/base/autoencoder.pt" "$run/autoencoder.pt"
+    [ -f "$run/config.json" ] || cp runs/wp_recipe/config.json "$run/config.json"
+    ./scripts/model.sh train --data data/train120 --run "$run" --policy worldpack --steps "$steps" ${MINUTES:+--minutes "$MINUTES"} \
+        --init-from runs/wp_recipe/cdit-worldpack.pt --threads "$threads" --memory-focus 0.5 \
+        --context-noise 0.7 --generated-level 0.3 --warp ;;
+  export)
+    ./scripts/model.sh export --run "$run" --policy worldpack --layouts worldpack --data data/val --out "$out" --half --threads "$threads" ;;
+  eval)
+    # The rows session 8 measured are reused from runs/recipe/eval-test/rows when their models are unchanged.
+    "$bin" eval --suite data/loopnav-test --models fixtures/variants --policies baseline --out runs/recipe/eval-test \
+        --extra baseline_ctx_noise=fixtures/variants/baseline_ctx_noise --extra worldpack_recipe=$recipe \
+        --extra nearest_frame_packing_recipe=fixtures/variants/nearest_frame_packing_recipe \
+        --extra memory_retrieval_recipe=fixtures/variants/memory_retrieval_recipe --extra "$geo" \
+        --composite baseline --composite worldpack_geometry --against worldpack_recipe \
+        --strip worldpack_geometry,worldpack_recipe,baseline,reproject_fused --threads "${EVAL_THREADS:-2}" "${@:2}" ;;
+  probe)
+    # Only the rows the geometry questions need: the baseline (required), WorldPack with the recipe, the geometry model.
+    mkdir -p runs/geo/probe-models
+    [ -e runs/geo/probe-models/baseline ] || ln -s "$PWD/fixtures/variants/baseline" runs/geo/probe-models/baseline
+    "$bin" probe --suite "${SUITE:-data/loopnav-test}" --models runs/geo/probe-models --stride "${STRIDE:-12}" \
+        --extra worldpack_recipe=$recipe --extra "$geo" --composite worldpack_geometry \
+        --contrast "worldpack_geometry:reproject 3 best frames, fused" \
+        --contrast "worldpack_geometry:fused warp, baseline in its holes" \
+        --contrast "worldpack_geometry, warp overlaid:fused warp, baseline in its holes" \
+        --contrast "worldpack_geometry:worldpack_recipe" --threads "${EVAL_THREADS:-2}" --out runs/geo/probe.json "${@:2}" ;;
+  walk)
+    .venv/bin/python scripts/rest_walk.py --out docs/geometry/rest_walk --observe-outbound \
+        --row worldpack_geometry="$out":worldpack --row worldpack_recipe=$recipe:worldpack \
+        --row baseline=fixtures/variants/baseline:baseline ;;
+  *) echo "usage: $0 train | export | eval | probe | walk" >&2; exit 2 ;;
+esac
