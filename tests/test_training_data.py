@@ -44,9 +44,9 @@ def drawn_rows(source, seed, batches, n):
     """The (trajectory, frame) rows of `batches` batches, and the last batch."""
     rows, gather = [], source.gather
 
-    def keep(r):
+    def keep(r, *rest):
         rows.append(list(r))
-        return gather(r)
+        return gather(r, *rest)
 
     source.gather = keep
     rng = np.random.default_rng(seed)
@@ -104,3 +104,37 @@ def test_bad_focus_settings_name_the_flag(suite):
             wdata.PlannedLatents(data, latents, POLICY, LAYOUTS[POLICY], memory_focus=0.5)
     finally:
         first.write_bytes(kept)
+
+
+def test_warp_sources_come_from_each_targets_own_plan(suite):
+    """With `warp`, each target's warp sources are 0 to 3 distinct frames of its own
+    plan (so earlier than it), the empty share is about WARP_NONE, and the pixels
+    for the warp are those frames' RGB, depth and poses, padding marked absent."""
+    data, latents = suite
+    source = wdata.PlannedLatents(data, latents, POLICY, LAYOUTS[POLICY], warp=True)
+    rng = np.random.default_rng(5)
+    counts = []
+    for _ in range(40):
+        batch = source.batch(rng, 32)
+        for (i, t), frames in zip(batch.rows, batch.warp_sources):
+            plan = set(int(f) for f in source.plans[i][t] if f >= 0)
+            assert len(frames) == len(set(frames)) <= wdata.PlannedLatents.WARP_FRAMES
+            assert set(frames) <= plan and all(f < t for f in frames), (i, t, frames)
+            counts.append(len(frames))
+    empty = counts.count(0) / len(counts)
+    assert abs(empty - wdata.PlannedLatents.WARP_NONE) < 0.04, empty
+    assert {1, 2, 3} <= set(counts)
+    rgb, depth, src_pose, dst_pose, present = source.warp_pixels(batch)
+    k = max(len(f) for f in batch.warp_sources)
+    assert rgb.shape[:2] == depth.shape[:2] == src_pose.shape[:2] == present.shape == (32, k)
+    for row, ((i, t), frames) in enumerate(zip(batch.rows, batch.warp_sources)):
+        assert present[row].sum() == len(frames)
+        for j, f in enumerate(frames):
+            np.testing.assert_array_equal(rgb[row, j], source.rgb[i][f])
+            np.testing.assert_array_equal(src_pose[row, j], source.poses[i][f])
+        np.testing.assert_array_equal(dst_pose[row], source.poses[i][t])
+    # Without `warp` nothing is drawn, and a deterministic gather takes the first planned frame.
+    assert wdata.PlannedLatents(data, latents, POLICY, LAYOUTS[POLICY]).batch(rng, 4).warp_sources is None
+    (i, t), = [batch.rows[0]]
+    first = source.gather([(i, t)]).warp_sources[0]
+    assert first == [int(source.plans[i][t][source.plans[i][t] >= 0][0])]
