@@ -44,15 +44,6 @@ pub enum Predictor<'a> {
     Composite { model: &'a Model, policy: Policy, sampler: Sampler },
 }
 
-/// `image` with the warp's pixels wherever something landed.
-pub fn overlay(mut image: Vec<u8>, warped: &Warped) -> Vec<u8> {
-    for (p, &m) in warped.mask.iter().enumerate() {
-        if m {
-            image[3 * p..3 * p + 3].copy_from_slice(&warped.rgb[3 * p..3 * p + 3]);
-        }
-    }
-    image
-}
 
 /// Frames the fused reference warps together.
 pub const FUSED_FRAMES: usize = 3;
@@ -345,7 +336,7 @@ pub fn probe_trajectory(
                     )));
                 }
                 predict_model(model, policy, sampler, traj, &latents, &targets, plans, &warp_plans[row_index], settings, |t, img| {
-                    let img = if composite { overlay(img, &fused[&t]) } else { img };
+                    let img = if composite { fused[&t].overlay(img) } else { img };
                     out.push(score(t, &img));
                     progress(1);
                 })?;

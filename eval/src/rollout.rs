@@ -9,7 +9,7 @@ use model::pack::ContextFrame;
 use model::{Request, WarpSource};
 
 use crate::features::{Embedding, FeatureError, Lpips, VideoFeatures, frechet_distance};
-use crate::probe::{FUSED_FRAMES, FrameScore, Predictor, ProbeError, Row, encode_frames, fused_warp, overlay, reference_image, warp_sources};
+use crate::probe::{FUSED_FRAMES, FrameScore, Predictor, ProbeError, Row, encode_frames, fused_warp, reference_image, warp_sources};
 use crate::suite::Trajectory;
 
 /// The frames a rollout generates: the return leg, from the returning point,
@@ -187,7 +187,7 @@ pub fn rollout_as(
                         for (&i, p) in chunk.iter().zip(&mut prediction.frames) {
                             let r = &runs[i];
                             let plan = r.observed.select(fused, &r.frusta[r.next], None).0;
-                            p.rgb = overlay(std::mem::take(&mut p.rgb), &fused_warp(r.traj, &plan, r.next));
+                            p.rgb = fused_warp(r.traj, &plan, r.next).overlay(std::mem::take(&mut p.rgb));
                         }
                         let images: Vec<&[u8]> = prediction.frames.iter().map(|p| p.rgb.as_slice()).collect();
                         let latents = encode_frames(model, &images, &runs[chunk[0]].traj.intrinsics)?;

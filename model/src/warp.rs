@@ -41,6 +41,16 @@ impl Warped {
     pub fn coverage(&self) -> f64 {
         self.mask.iter().filter(|&&m| m).count() as f64 / self.mask.len().max(1) as f64
     }
+
+    /// `image` (RGB, the warp's size) with the warp's pixels wherever something landed.
+    pub fn overlay(&self, mut image: Vec<u8>) -> Vec<u8> {
+        for (p, &m) in self.mask.iter().enumerate() {
+            if m {
+                image[3 * p..3 * p + 3].copy_from_slice(&self.rgb[3 * p..3 * p + 3]);
+            }
+        }
+        image
+    }
 }
 
 /// `src` as the camera at `dst` would see it. Each source pixel lands on the
