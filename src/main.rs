@@ -68,6 +68,10 @@ enum Command {
         /// Model calls in flight across sessions before the next is refused with 503.
         #[arg(long, default_value_t = 64, value_parser = clap::value_parser!(u64).range(1..=100_000))]
         max_inflight: u64,
+        /// Geometry models only: each generated frame keeps the warp of its sources wherever it
+        /// lands, and the model fills only the holes (the composite; docs/geometry.md).
+        #[arg(long)]
+        overlay_warp: bool,
     },
     /// Benchmarks (tables on stdout; --json for machines).
     Bench {
@@ -319,7 +323,7 @@ fn main() -> ExitCode {
                 report(sim::render_one(&out, seed, pose, biome, size, probe), "sim render")
             }
         },
-        Command::Serve { model, memory_only, store, addr, provider, threads, steps, method, policy, max_queue, max_inflight } => {
+        Command::Serve { model, memory_only, store, addr, provider, threads, steps, method, policy, max_queue, max_inflight, overlay_warp } => {
             let config = api::Config {
                 addr,
                 store,
@@ -330,6 +334,7 @@ fn main() -> ExitCode {
                 policy: serde_json::json!({ "kind": policy.kind, "query": policy.query, "keep_last": policy.keep_last }),
                 max_queue_per_session: max_queue as usize,
                 max_inflight: max_inflight as usize,
+                overlay_warp,
                 ..api::Config::default()
             };
             report(serve(config), "serve")

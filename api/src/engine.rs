@@ -24,6 +24,8 @@ use crate::store::{FrameMeta, FrameRecord, SessionRecord, Store};
 pub struct Engine {
     pub store: Store,
     pub model: Option<Model>,
+    /// Show a geometry model's warp wherever it lands (`Config::overlay_warp`).
+    pub overlay_warp: bool,
     worlds: Mutex<HashMap<u64, Arc<World>>>,
 }
 
@@ -55,7 +57,7 @@ pub struct TruthScore {
 
 impl Engine {
     pub fn new(store: Store, model: Option<Model>) -> Engine {
-        Engine { store, model, worlds: Mutex::new(HashMap::new()) }
+        Engine { store, model, overlay_warp: false, worlds: Mutex::new(HashMap::new()) }
     }
 
     /// The synthetic world of `seed`, generated once and shared.
@@ -186,7 +188,15 @@ impl Engine {
         let frames = &s.frames;
         let lookup = |_: usize, id: u64| frames.get(id as usize).map(|f| ContextFrame { latent: &f.latent, time: f.time, pose: &f.pose, generated: f.generated });
         let mut prediction = m.predict(&s.policy.packing, &[request], &lookup, sampler)?;
-        let predicted = prediction.frames.remove(0);
+        let mut predicted = prediction.frames.remove(0);
+        if self.overlay_warp && !warp.is_empty() {
+            // What was seen stays as it was seen; the model fills what no source shows.
+            let t = Instant::now();
+            predicted.rgb = model::warp::forward_warp_many(&warp, &pose)?.overlay(predicted.rgb);
+            let img = &m.manifest().image;
+            predicted.latent = self.latent_of(&predicted.rgb, img.width as u32, img.height as u32, s.intrinsics(), "overlay")?;
+            prediction.warp_ms += ms(t);
+        }
         let img = &m.manifest().image;
         let truth = self.truth_at(s, &pose)?.map(|t| TruthScore {
             psnr_db: eval::metrics::psnr(&predicted.rgb, &t),

@@ -45,6 +45,9 @@ pub struct Config {
     /// Model calls in flight across sessions before the next gets 503.
     pub max_inflight: usize,
     pub request_timeout: Duration,
+    /// Geometry models: each generated frame shows the warp of its sources
+    /// wherever it lands (the model fills only the holes), and is re-encoded.
+    pub overlay_warp: bool,
 }
 
 impl Default for Config {
@@ -61,6 +64,7 @@ impl Default for Config {
             max_queue_per_session: 8,
             max_inflight: 64,
             request_timeout: Duration::from_secs(120),
+            overlay_warp: false,
         }
     }
 }
@@ -104,9 +108,14 @@ impl Server {
             None => None,
         };
         session::policy_of(&config.policy).map_err(|e| format!("--policy: {}", e.message))?;
+        if config.overlay_warp && !model.as_ref().is_some_and(|m| m.manifest().denoiser.warp.is_some()) {
+            return Err("--overlay-warp: only a geometry model (a manifest with denoiser.warp) has a warp to overlay".into());
+        }
+        let mut engine = Engine::new(store, model);
+        engine.overlay_warp = config.overlay_warp;
         let state = Arc::new(AppState {
             inflight: Semaphore::new(config.max_inflight),
-            engine: Engine::new(store, model),
+            engine,
             sessions: RwLock::new(HashMap::new()),
             metrics: Metrics::default(),
             config: config.clone(),
