@@ -22,7 +22,7 @@ impl Server {
     fn start(store: &Path, extra: &[&str]) -> Server {
         let fixture = concat!(env!("CARGO_MANIFEST_DIR"), "/fixtures/small");
         let mut args = vec!["serve", "--addr", "127.0.0.1:0", "--store", store.to_str().unwrap(), "--steps", "2"];
-        if !extra.contains(&"--memory-only") {
+        if !extra.contains(&"--memory-only") && !extra.contains(&"--model") {
             args.extend(["--model", fixture]);
         }
         args.extend(extra);
@@ -109,6 +109,7 @@ fn a_synthetic_session_steps_observes_selects_and_reads_back() {
         let psnr = r["truth"]["psnr_db"].as_f64().unwrap();
         assert!(psnr.is_finite() && psnr > 5.0, "a synthetic step scores itself against the world: {}", r["truth"]);
         assert_eq!(r["truth"]["image"], format!("/v1/sessions/{id}/frames/{i}/truth"));
+        assert!(r["selection"]["warp_frames"] == json!([]) && r["timings_ms"]["warp"] == 0.0, "this model takes no warp: {r}");
     }
     // The first frame is the world's own render, so its truth is the same picture.
     assert_eq!(s.bytes(&format!("/v1/sessions/{id}/frames/0/truth")), s.bytes(&format!("/v1/sessions/{id}/frames/0/image")));
@@ -358,4 +359,73 @@ fn full_queues_answer_429_and_503_and_lose_nothing() {
     // Exactly the accepted steps were stored.
     let stored: u64 = ids.iter().map(|id| s.get(&format!("/v1/sessions/{id}")).1["frames"].as_u64().unwrap() - 1).sum();
     assert_eq!(stored, codes.iter().filter(|&&c| c == 200).count() as u64);
+}
+
+#[test]
+fn a_geometry_model_warps_the_best_observed_frame_with_depth_across_restarts() {
+    let store = temp_store("geometry");
+    let model = concat!(env!("CARGO_MANIFEST_DIR"), "/fixtures/variants/worldpack_geometry");
+    let s = Server::start(&store, &["--model", model]);
+    let (code, created) = s.post("/v1/sessions", &json!({ "synthetic": { "seed": 3 }, "policy": { "kind": "worldpack" } }));
+    assert_eq!(code, 201, "{created}");
+    let id = created["session"].as_u64().unwrap();
+    let step = |body: Value| s.post(&format!("/v1/sessions/{id}/step"), &body);
+    // A synthetic session's first frame comes with the world's depth, as a depth camera's would.
+    let depth = s.bytes(&format!("/v1/sessions/{id}/frames/0/depth"));
+    assert_eq!(&depth[1..4], b"PNG");
+    for i in 1..=3u64 {
+        let (code, r) = step(json!({ "action": { "forward": true } }));
+        assert_eq!(code, 200, "{r}");
+        assert_eq!(r["selection"]["warp_frames"][0].as_u64(), Some(0), "step {i}: only frame 0 has depth: {r}");
+        assert!(r["timings_ms"]["warp"].as_f64().unwrap() > 0.0, "{r}");
+    }
+    // An observing step records the world's frame and depth: the next step warps it first.
+    let (code, r) = step(json!({ "action": { "forward": true }, "observe": true }));
+    assert_eq!((code, r["source"].as_str(), r["index"].as_u64()), (200, Some("observed"), Some(4)), "{r}");
+    assert!(r["truth"].is_null(), "an observed frame is the truth: {r}");
+    assert_eq!(s.bytes(&format!("/v1/sessions/{id}/frames/4/depth"))[1..4], *b"PNG");
+    let (code, r) = step(json!({ "action": {} }));
+    assert_eq!((code, r["selection"]["warp_frames"][0].as_u64()), (200, Some(4)), "{r}");
+    // A frame observed through the API with depth joins the warp sources too.
+    let (_, frame3) = s.get(&format!("/v1/sessions/{id}/frames/3"));
+    let pose3 = json!({ "c2w": frame3["pose"] });
+    let truth3 = s.bytes(&format!("/v1/sessions/{id}/frames/3/truth"));
+    let (code, r) = s.post(&format!("/v1/sessions/{id}/observe"), &json!({ "image_png": B64.encode(&truth3), "pose": pose3, "depth_png16": B64.encode(&depth) }));
+    assert_eq!((code, r["index"].as_u64()), (200, Some(6)), "{r}");
+    let (code, r) = step(json!({ "action": {}, "pose": pose3 }));
+    assert_eq!((code, r["selection"]["warp_frames"][0].as_u64()), (200, Some(6)), "{r}");
+    // Wrong depth, or an observing step with a pose, is refused by name and stores nothing.
+    let (code, r) = s.post(&format!("/v1/sessions/{id}/observe"), &json!({ "image_png": B64.encode(&truth3), "pose": pose3, "depth_png16": B64.encode(&truth3) }));
+    assert_eq!((code, r["error"]["field"].as_str()), (400, Some("depth_png16")), "{r}");
+    let (code, r) = step(json!({ "action": {}, "pose": pose3, "observe": true }));
+    assert_eq!((code, r["error"]["field"].as_str()), (400, Some("observe")), "{r}");
+    let (_, frame0) = s.get(&format!("/v1/sessions/{id}/frames/0"));
+    let pose0 = json!({ "c2w": frame0["pose"] });
+    s.kill();
+    // After a restart the warp sources come back from the store.
+    let s = Server::start(&store, &["--model", model]);
+    let (code, r) = s.post(&format!("/v1/sessions/{id}/step"), &json!({ "action": {}, "pose": pose0 }));
+    assert_eq!((code, r["index"].as_u64()), (200, Some(8)), "{r}");
+    assert_eq!(r["selection"]["warp_frames"][0].as_u64(), Some(0), "{r}");
+    s.kill();
+    // With --overlay-warp what the sources show is kept as seen: in a new session, at frame 0's own
+    // pose, frame 0 (the only one with depth) warps onto every pixel, so the step gives it back.
+    let s = Server::start(&store, &["--model", model, "--overlay-warp"]);
+    let (_, created) = s.post("/v1/sessions", &json!({ "synthetic": { "seed": 3 } }));
+    let id = created["session"].as_u64().unwrap();
+    let (_, frame0) = s.get(&format!("/v1/sessions/{id}/frames/0"));
+    let (code, r) = s.post(&format!("/v1/sessions/{id}/step"), &json!({ "action": {}, "pose": { "c2w": frame0["pose"] } }));
+    assert_eq!(code, 200, "{r}");
+    assert_eq!(s.bytes(&format!("/v1/sessions/{id}/frames/1/image")), s.bytes(&format!("/v1/sessions/{id}/frames/0/image")));
+    assert_eq!(r["truth"]["psnr_db"].as_f64(), Some(100.0), "{r}");
+}
+
+#[test]
+fn overlay_warp_needs_a_geometry_model() {
+    let out = Command::new(env!("CARGO_BIN_EXE_worldpack"))
+        .args(["serve", "--addr", "127.0.0.1:0", "--store", temp_store("overlay").to_str().unwrap(), "--overlay-warp"])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("--overlay-warp"), "{}", String::from_utf8_lossy(&out.stderr));
 }

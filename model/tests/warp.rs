@@ -1,0 +1,85 @@
+//! The geometry model's warp in Rust against the trainer's (the cases the
+//! export wrote with PyTorch), and its warp input through the encoder.
+
+use std::path::{Path, PathBuf};
+
+use memory::{Intrinsics, Pose};
+use model::warp::{Warped, forward_warp, forward_warp_many};
+use model::{Model, Provider, RuntimeOptions, Tensor, WarpSource};
+
+fn fixture() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../fixtures/variants/worldpack_geometry")
+}
+
+fn cases<T: world::npy::Element>(name: &str) -> (Vec<usize>, Vec<T>) {
+    let path = fixture().join("reference/warp").join(format!("{name}.npy"));
+    world::npy::read::<T>(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+}
+
+fn pose(m: &[f64]) -> Pose {
+    let r = [[m[0], m[1], m[2]], [m[4], m[5], m[6]], [m[8], m[9], m[10]]];
+    Pose::from_rows(r, [m[3], m[7], m[11]]).expect("a reference pose is a proper rotation")
+}
+
+/// Frames `rgb` (N, H, W, 3) with their depth and poses, as warp sources.
+fn sources<'a>(rgb: &'a [u8], depth: &'a [u16], poses: &'a [Pose], k: &'a Intrinsics) -> Vec<WarpSource<'a>> {
+    let pixels = depth.len() / poses.len();
+    (0..poses.len())
+        .map(|i| WarpSource { rgb: &rgb[i * pixels * 3..(i + 1) * pixels * 3], depth_mm: &depth[i * pixels..(i + 1) * pixels], pose: &poses[i], intrinsics: k })
+        .collect()
+}
+
+/// Pixels where our mask, and our colour, equal the reference's.
+fn agreement(ours: &Warped, rgb: &[u8], mask: &[u8]) -> (usize, usize) {
+    let same_mask = ours.mask.iter().zip(mask).filter(|(a, b)| **a == (**b == 1)).count();
+    let same_rgb = ours.rgb.chunks(3).zip(rgb.chunks(3)).filter(|(a, b)| a == b).count();
+    (same_mask, same_rgb)
+}
+
+#[test]
+fn the_warp_and_its_encoding_match_the_trainer() {
+    let model = Model::load(&fixture(), RuntimeOptions { provider: Provider::Cpu, threads: 1 }).expect("the geometry model loads");
+    let k = model.manifest().intrinsics;
+    let (shape, rgb) = cases::<u8>("rgb");
+    let (_, depth) = cases::<u16>("depth_mm");
+    let src: Vec<Pose> = cases::<f64>("src_c2w").1.chunks(16).map(pose).collect();
+    let dst: Vec<Pose> = cases::<f64>("dst_c2w").1.chunks(16).map(pose).collect();
+    let (_, warped) = cases::<u8>("warped");
+    let (_, mask) = cases::<u8>("mask");
+    let (n, pixels) = (shape[0], shape[1] * shape[2]);
+    assert!(n >= 3, "the export writes a case per gap");
+    let one_each = sources(&rgb, &depth, &src, &k);
+    // Float64 in the same order on both sides: a projection landing exactly
+    // on a rounding edge is the only way to disagree, and it is rare.
+    for i in 0..n {
+        let (m, c) = (&mask[i * pixels..(i + 1) * pixels], &warped[i * pixels * 3..(i + 1) * pixels * 3]);
+        let covered = m.iter().filter(|&&v| v == 1).count();
+        assert!(covered * 5 >= pixels, "case {i}: the reference warp covers too little to check ({covered} pixels)");
+        let (same_mask, same_rgb) = agreement(&forward_warp(&one_each[i], &dst[i]).unwrap(), c, m);
+        assert!(same_mask * 1000 >= pixels * 998 && same_rgb * 1000 >= pixels * 998, "case {i}: {same_mask} masks, {same_rgb} colours of {pixels} agree");
+    }
+
+    // Several frames behind one z-buffer, as the runtime fuses a manifest's `warp.frames`.
+    let (_, frgb) = cases::<u8>("fused_rgb");
+    let (_, fdepth) = cases::<u16>("fused_depth_mm");
+    let fsrc: Vec<Pose> = cases::<f64>("fused_src_c2w").1.chunks(16).map(pose).collect();
+    let fdst = pose(&cases::<f64>("fused_dst_c2w").1);
+    let fused = sources(&frgb, &fdepth, &fsrc, &k);
+    let ours = forward_warp_many(&fused, &fdst).unwrap();
+    assert!(ours.coverage() > forward_warp(&fused[0], &fdst).unwrap().coverage(), "fusing covers more than the best frame alone");
+    let (same_mask, same_rgb) = agreement(&ours, &cases::<u8>("fused_warped").1, &cases::<u8>("fused_mask").1);
+    assert!(same_mask * 1000 >= pixels * 998 && same_rgb * 1000 >= pixels * 998, "fused: {same_mask} masks, {same_rgb} colours of {pixels} agree");
+
+    // The encoded input: the warp through the model's encoder, then the coverage per latent cell.
+    let items: Vec<_> = one_each.iter().zip(&dst).map(|(s, d)| (std::slice::from_ref(s), d)).collect();
+    let ours = model.warp_input(&items).unwrap();
+    let (in_shape, input) = cases::<f32>("input");
+    assert_eq!(ours.shape, in_shape);
+    let expected = Tensor::new(in_shape, input);
+    let worst = ours.data.iter().zip(&expected.data).map(|(a, b)| (a - b).abs() - (1e-4 + 1e-3 * b.abs())).fold(f32::NEG_INFINITY, f32::max);
+    assert!(worst <= 0.0, "the warp input exceeds the tolerance by {worst:e}");
+    // Without a source, the input is the encoded empty image with zero coverage, as in training.
+    let empty = model.warp_input(&[(&[], &dst[0])]).unwrap();
+    let per = empty.data.len() / 5;
+    assert!(empty.data[4 * per..].iter().all(|&c| c == 0.0));
+}
