@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
 # The main job: serves the REST API over a committed model and a local store
 # (data/worldpack.redb). Without flags it serves what the held-out rollouts
-# recommend (docs/rollouts.md): fixtures/variants/worldpack_recipe, WorldPack
-# as the paper's Algorithm 1, 10 DDIM steps, the best learned row on the
+# recommend (docs/geometry.md): fixtures/variants/worldpack_geometry, WorldPack
+# as the paper's Algorithm 1 with the observed frames warped into the new
+# view, its warp overlaid (--overlay-warp), 10 DDIM steps: the best row on the
 # 48-trajectory test suite. With flags, they all go to `worldpack serve` as
 # given (its own defaults: fixtures/small, 16 ancestral steps; see
 # `cargo run --release -- serve --help`). On first use it installs ONNX
@@ -15,6 +16,6 @@ if ! ls .venv/lib/python3*/site-packages/onnxruntime/capi/libonnxruntime.so* >/d
   .venv/bin/python -m pip install --disable-pip-version-check -q "$(grep '^onnxruntime==' tests/requirements.txt)"
 fi
 if [ $# -eq 0 ]; then
-  set -- --model fixtures/variants/worldpack_recipe --policy worldpack --method ddim --steps 10
+  set -- --model fixtures/variants/worldpack_geometry --policy worldpack --method ddim --steps 10 --overlay-warp
 fi
 exec cargo run --release --bin worldpack -- serve "$@"
