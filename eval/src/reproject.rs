@@ -7,9 +7,6 @@ use memory::{Intrinsics, Pose};
 use model::warp::{Warped, forward_warp_many};
 use model::WarpSource;
 
-/// Depth maps store millimetres along the optical axis, 0 where nothing is.
-pub const DEPTH_UNIT_M: f64 = model::warp::DEPTH_UNIT_M;
-
 /// `src` (RGB) with its depth, seen from `src_pose`, as the camera at
 /// `dst_pose` would see it: the warp, and what stays empty (newly revealed,
 /// cracks) keeps the source pixel, so the result degrades to a copy.

@@ -8,7 +8,7 @@ use glam::{DVec2, DVec3};
 use memory::{FrameMemory, MemoryFrame, Policy};
 use serde::Serialize;
 
-use crate::reproject::DEPTH_UNIT_M;
+use model::warp::DEPTH_UNIT_M;
 use crate::suite::{RETURN_PHASE, SuiteError, Trajectory};
 
 /// What one target asks of the memory.

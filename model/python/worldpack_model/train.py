@@ -224,6 +224,8 @@ def train_cdit(data: Path, run: Path, policy: str, steps: int, batch: int, lr: f
     # The frozen autoencoder's encoder turns each batch's warped frames into the model's warp input.
     autoencoder = load_autoencoder(run, dev).requires_grad_(False) if cfg.cdit.warp else None
     augment = ContextAugmenter(recipe, source, layout.rates, alpha_bar, cfg.cdit.context_noise, 2000 + step, dev)
+    noisy = recipe.pose_noise_translation > 0 or recipe.pose_noise_degrees > 0
+    pose_noise = (recipe.pose_noise_translation, recipe.pose_noise_degrees, augment.gen) if noisy else None
     deadline = time.time() + minutes * 60 if minutes is not None else math.inf
     bar = tqdm(total=steps, initial=step, desc=f"cdit {policy}", unit="step")
     started, seen = time.time(), 0
@@ -233,8 +235,6 @@ def train_cdit(data: Path, run: Path, policy: str, steps: int, batch: int, lr: f
     while step < steps and time.time() < deadline:
         drawn = source.batch(rng, batch)
         x0, action, rel_time, groups = augment(drawn, ema)
-        noisy = recipe.pose_noise_translation > 0 or recipe.pose_noise_degrees > 0
-        pose_noise = (recipe.pose_noise_translation, recipe.pose_noise_degrees, augment.gen) if noisy else None
         warp_in = batch_warp(source, drawn, autoencoder, dev, pose_noise) if autoencoder is not None else None
         t = torch.randint(0, cfg.diffusion.timesteps, (batch,), device=dev)
         noise = torch.randn_like(x0)
