@@ -63,6 +63,9 @@ pub struct Probe {
     pub loaded_kib: u64,
     /// Peak resident memory over the calls (VmHWM, KiB).
     pub peak_kib: u64,
+    /// Whether the high-water mark was reset after loading. If not, the peak
+    /// may be the load's, and the calls' own memory is not reported.
+    pub hwm_reset: bool,
 }
 
 fn status_kib(key: &str) -> Result<u64> {
@@ -78,13 +81,16 @@ pub fn probe(dir: &Path, layout: &str, options: RuntimeOptions, calls: usize) ->
     let graph = Graph::open(dir, &spec.graph(), options)?;
     let ctx = full_context(&manifest, &spec);
     let loaded_kib = status_kib("VmRSS:")?;
-    // Reset the high-water mark so the peak is the calls' own, not the load's (Linux >= 4.0).
-    let _ = std::fs::write("/proc/self/clear_refs", "5");
+    // Reset the high-water mark so the peak is the calls' own, not the load's
+    // (Linux >= 4.0), and check that it took: a reset mark sits at the
+    // current resident size, give or take what the read itself allocated.
+    let written = std::fs::write("/proc/self/clear_refs", "5").is_ok();
+    let hwm_reset = written && status_kib("VmHWM:")? <= status_kib("VmRSS:")? + 1024;
     for _ in 0..calls {
         call(&graph, &manifest, &ctx)?;
     }
     let peak_kib = status_kib("VmHWM:")?;
-    println!("{}", serde_json::to_string(&Probe { layout: layout.into(), loaded_kib, peak_kib })?);
+    println!("{}", serde_json::to_string(&Probe { layout: layout.into(), loaded_kib, peak_kib, hwm_reset })?);
     Ok(())
 }
 
@@ -98,7 +104,8 @@ struct Report {
     worldpack: LayoutRow,
     time_ratio: f64,
     peak_ratio: f64,
-    call_memory_ratio: f64,
+    /// None when a high-water-mark reset failed (the peak may then be the load's).
+    call_memory_ratio: Option<f64>,
     next_frame: Vec<StepRow>,
 }
 
@@ -109,7 +116,9 @@ struct LayoutRow {
     median_ms: f64,
     p95_ms: f64,
     peak_mib: f64,
-    call_memory_mib: f64,
+    /// Peak over the calls minus the resident size after loading; None when
+    /// the high-water mark could not be reset.
+    call_memory_mib: Option<f64>,
 }
 
 #[derive(Serialize)]
@@ -180,7 +189,7 @@ pub fn run(dir: &Path, options: RuntimeOptions, steps: &[usize], calls: usize, j
         median_ms,
         p95_ms,
         peak_mib: mib(q.peak_kib),
-        call_memory_mib: mib(q.peak_kib.saturating_sub(q.loaded_kib)),
+        call_memory_mib: q.hwm_reset.then(|| mib(q.peak_kib.saturating_sub(q.loaded_kib))),
     };
     let report = Report {
         model: dir.display().to_string(),
@@ -189,7 +198,8 @@ pub fn run(dir: &Path, options: RuntimeOptions, steps: &[usize], calls: usize, j
         calls,
         time_ratio: mp / mb,
         peak_ratio: qp.peak_kib as f64 / qb.peak_kib as f64,
-        call_memory_ratio: qp.peak_kib.saturating_sub(qp.loaded_kib) as f64 / qb.peak_kib.saturating_sub(qb.loaded_kib).max(1) as f64,
+        call_memory_ratio: (qb.hwm_reset && qp.hwm_reset)
+            .then(|| qp.peak_kib.saturating_sub(qp.loaded_kib) as f64 / qb.peak_kib.saturating_sub(qb.loaded_kib).max(1) as f64),
         baseline: row(&base, mb, pb, &qb),
         worldpack: row(&packed, mp, pp, &qp),
         next_frame,
@@ -213,13 +223,17 @@ fn options_provider(o: RuntimeOptions) -> &'static str {
 fn print(r: &Report) {
     println!("model {} on {} ({} intra-op threads; 0 = ONNX Runtime's choice), {} calls per layout\n", r.model, r.provider, r.threads, r.calls);
     println!("{:<11} {:>7} {:>8} {:>12} {:>10} {:>11} {:>15}", "context", "frames", "tokens", "median (ms)", "p95 (ms)", "peak (MiB)", "per call (MiB)");
+    let or_na = |v: Option<f64>, digits: usize| v.map_or("n/a".to_string(), |v| format!("{v:.digits$}"));
     for (name, l) in [("baseline", &r.baseline), ("worldpack", &r.worldpack)] {
-        println!("{:<11} {:>7} {:>8} {:>12.3} {:>10.3} {:>11.1} {:>15.2}", name, l.frames, l.context_tokens, l.median_ms, l.p95_ms, l.peak_mib, l.call_memory_mib);
+        println!("{:<11} {:>7} {:>8} {:>12.3} {:>10.3} {:>11.1} {:>15}", name, l.frames, l.context_tokens, l.median_ms, l.p95_ms, l.peak_mib, or_na(l.call_memory_mib, 2));
     }
     println!(
-        "\nworldpack / baseline: time {:.3}x, peak memory {:.3}x, per-call memory {:.3}x  (paper: 1.16x time, 1.12x memory)",
-        r.time_ratio, r.peak_ratio, r.call_memory_ratio
+        "\nworldpack / baseline: time {:.3}x, peak memory {:.3}x, per-call memory {}x  (paper: 1.16x time, 1.12x memory)",
+        r.time_ratio, r.peak_ratio, or_na(r.call_memory_ratio, 3)
     );
+    if r.call_memory_ratio.is_none() {
+        println!("per-call memory n/a: the high-water mark could not be reset after loading (/proc/self/clear_refs), so a peak may be the load's");
+    }
     println!("\nnext frame (sampler + decode), median of 3:");
     println!("{:>6} {:>14} {:>15}", "steps", "baseline (ms)", "worldpack (ms)");
     for s in &r.next_frame {

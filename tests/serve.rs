@@ -429,3 +429,30 @@ fn overlay_warp_needs_a_geometry_model() {
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("--overlay-warp"), "{}", String::from_utf8_lossy(&out.stderr));
 }
+
+/// The paper's token geometry end to end (fixtures/paper_tokens: 224x224
+/// frames, 28x28 latents, random weights): a synthetic session steps until
+/// its memory fills the 22 packed slots, and every answer is a 224x224 frame.
+#[test]
+fn the_paper_token_geometry_serves_a_synthetic_session() {
+    let store = temp_store("paper-tokens");
+    let model = concat!(env!("CARGO_MANIFEST_DIR"), "/fixtures/paper_tokens");
+    let s = Server::start(&store, &["--model", model]);
+    let (code, created) = s.post("/v1/sessions", &json!({ "synthetic": { "seed": 3 }, "policy": { "kind": "worldpack" } }));
+    assert_eq!(code, 201, "{created}");
+    let id = created["session"].as_u64().unwrap();
+    for i in 1..=24u64 {
+        let (code, r) = s.post(&format!("/v1/sessions/{id}/step"), &json!({ "action": { "forward": true, "yaw_deg": 15 } }));
+        assert_eq!(code, 200, "{r}");
+        let png = B64.decode(r["image_png"].as_str().unwrap()).unwrap();
+        let side = |at: usize| u32::from_be_bytes(png[at..at + 4].try_into().unwrap());
+        assert_eq!((&png[12..16], side(16), side(20)), (&b"IHDR"[..], 224, 224), "step {i}: the frame is 224x224");
+        let slots = r["selection"]["plan"]["slots"].as_array().unwrap();
+        let used_at = |rate: u64| slots.iter().filter(|s| s["rate"] == rate && s["frame"].is_u64()).count() as u64;
+        let used = used_at(1) + used_at(4) + used_at(16);
+        assert_eq!(used, i.min(22), "step {i}: every earlier frame fits until there are 22");
+        if i > 22 {
+            assert_eq!((used_at(1), used_at(4), used_at(16)), (2, 4, 16), "step {i}: the paper's 2 + 4 + 16 slots");
+        }
+    }
+}

@@ -185,6 +185,16 @@ def test_sd_vae_shaped_manifest_is_accepted():
     assert slots == {1: 196, 4: 49, 16: 16}, "28/2=14, 28/4=7, 28/8 -> replicate-padded to 4 per side"
 
 
+def test_paper_token_geometry_fixture_is_consistent():
+    """The committed paper-token model (random weights) has the example's token geometry, graphs and all."""
+    m = json.loads((ROOT / "fixtures" / "paper_tokens" / "manifest.json").read_text())
+    assert wm.validate(m) == []
+    layouts = {l["name"]: l for l in m["denoiser"]["layouts"]}
+    assert {s["rate"]: s["tokens_per_frame"] for s in layouts["worldpack"]["slots"]} == {1: 196, 4: 49, 16: 16}
+    assert (layouts["worldpack"]["context_tokens"], layouts["baseline"]["context_tokens"]) == (844, 784)
+    assert "training" not in m and "metrics" not in m, "random weights claim no training and no accuracy"
+
+
 @pytest.mark.parametrize("path,value,expect", [
     ("autoencoder.latent_scale", -1.0, "autoencoder.latent_scale"),
     ("denoiser.layouts.0.slots.1.tokens_per_frame", 15, "denoiser.layouts[0].slots[1].tokens_per_frame"),

@@ -1,4 +1,4 @@
-"""`python -m worldpack_model <stage>`: train-ae, encode, train, variants, export, recover.
+"""`python -m worldpack_model <stage>`: train-ae, encode, train, variants, export, paper-scale, recover.
 See docs/model.md for the whole recipe."""
 
 from __future__ import annotations
@@ -89,6 +89,16 @@ def main() -> None:
     p.add_argument("--out", type=Path, required=True)
     p.add_argument("--half", action="store_true", help="round the weights to float16 and store them so (half the size)")
 
+    p = sub.add_parser("paper-scale", help="a model folder at the paper's shapes (224x224 frames, 4x28x28 latents, "
+                       "844 vs 784 context tokens) with random seeded weights: --size paper (CDiT-B/2, SD-VAE-shaped "
+                       "autoencoder) to benchmark, --size smoke (same tokens, narrow) for the committed fixture")
+    p.add_argument("--size", default="paper", help="paper or smoke")
+    p.add_argument("--data", type=Path, required=True, help="a 224x224 suite with plans, for the reference inputs")
+    p.add_argument("--out", type=Path, required=True)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--half", action="store_true", help="round the weights to float16 and store them so (half the size)")
+    p.add_argument("--threads", type=int, default=0, help="torch CPU threads (0: torch's default)")
+
     p = sub.add_parser("recover", help="rebuild a run folder's checkpoints (config, autoencoder, CDiT) from an exported "
                        "model folder, checked against its reference outputs, so a committed model can be fine-tuned")
     p.add_argument("--model", type=Path, required=True, help="an exported model folder (manifest.json, ONNX graphs)")
@@ -102,7 +112,11 @@ def main() -> None:
         torch.set_num_threads(a.threads)
     from . import train
 
-    if a.stage == "recover":
+    if a.stage == "paper-scale":
+        from . import paper_scale
+
+        paper_scale.main(a.size, a.data, a.out, a.seed, a.half)
+    elif a.stage == "recover":
         from . import recover
 
         recover.recover(a.model, a.run, a.policy)

@@ -65,6 +65,17 @@ class Autoencoder(nn.Module):
         self.register_buffer("scale", torch.tensor(1.0))
 
 
+def build(cfg: AutoencoderConfig) -> nn.Module:
+    """The autoencoder `cfg.kind` names, untrained."""
+    if cfg.kind == "sd-vae":
+        from .sdvae import SDVAEShaped
+
+        return SDVAEShaped(cfg)
+    if cfg.kind != "small":
+        raise SystemExit(f"config autoencoder.kind: {cfg.kind!r} is neither \"small\" nor \"sd-vae\"")
+    return Autoencoder(cfg)
+
+
 def psnr(a: torch.Tensor, b: torch.Tensor) -> float:
     """PSNR in dB of images in [-1, 1] (peak-to-peak 2), over the whole batch."""
     mse = F.mse_loss(a.clamp(-1, 1), b.clamp(-1, 1)).item()

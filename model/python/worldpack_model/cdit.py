@@ -79,6 +79,18 @@ class ScalarEmbedder(nn.Module):
         return self.mlp(scalar_embedding(x / self.unit))
 
 
+def pad_replicate(x, k: int):
+    """(N, C, h, w) with the last row and column repeated up to multiples of
+    k, as F.pad's "replicate" mode would (which torch.export cannot trace with
+    a dynamic batch, so the paper's 28x28 latents at rate 16 would not export)."""
+    pw, ph = (-x.shape[3]) % k, (-x.shape[2]) % k
+    if pw:
+        x = torch.cat([x, x[:, :, :, -1:].expand(-1, -1, -1, pw)], dim=3)
+    if ph:
+        x = torch.cat([x, x[:, :, -1:, :].expand(-1, -1, ph, -1)], dim=2)
+    return x
+
+
 def modulate(x, shift, scale):
     return x * (1 + scale.unsqueeze(1)) + shift.unsqueeze(1)
 
@@ -251,8 +263,7 @@ class CDiT(nn.Module):
         proj = self.patchify if rate == 1 else self.rate_proj[f"r{rate}"]
         k = proj.kernel_size[0]
         x = frames.reshape(b * s, c, hh, ww)
-        if hh % k or ww % k:
-            x = F.pad(x, (0, (-ww) % k, 0, (-hh) % k), mode="replicate")
+        x = pad_replicate(x, k)
         x = proj(x).flatten(2).transpose(1, 2)  # (B*S, n, D)
         n = x.shape[1]
         x = x + getattr(self, f"pos_r{rate}")

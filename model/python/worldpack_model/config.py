@@ -19,6 +19,9 @@ class AutoencoderConfig:
     latent_channels: int = 4
     # Each width halves the resolution once after the first: (32, 64, 64) -> 1/4.
     widths: tuple[int, ...] = (32, 64, 64)
+    # "small": the autoencoder trained here (autoencoder.py); "sd-vae": the
+    # shapes of Stable Diffusion's VAE (sdvae.py; SD's widths are 128, 256, 512, 512).
+    kind: str = "small"
 
     @property
     def downsample(self) -> int:

@@ -171,23 +171,21 @@ def denoiser_io(cfg: ModelConfig, layout: Layout) -> tuple[list[dict], list[dict
 
 
 def reference_rows(source: wdata.PlannedLatents, count: int) -> list[tuple[int, int]]:
-    """Frames on the way back of the first trajectories, where memory matters."""
+    """Frames on the way back of the first trajectories, where memory matters:
+    3/4 of the way through each, then 7/8 when the suite has too few
+    trajectories (the graphs are traced at this batch, which must exceed 1)."""
     rows = []
-    for i, plans in enumerate(source.plans):
-        t = min(len(plans) - 1, (len(plans) * 3) // 4)
-        rows.append((i, t))
-        if len(rows) == count:
-            break
+    for fraction in (3 / 4, 7 / 8):
+        for i, plans in enumerate(source.plans):
+            if len(rows) == count:
+                return rows
+            rows.append((i, min(len(plans) - 1, int(len(plans) * fraction))))
     return rows
 
 
 def export(run: Path, policy: str, layout_names: list[str], data: Path, out: Path, device: str, half: bool = False) -> None:
-    started = time.time()
+    """A trained run's checkpoint (its EMA weights) as a model folder."""
     cfg = run_config(run)
-    dev = pick_device(device)
-    unknown = [n for n in layout_names if n not in LAYOUTS]
-    if unknown:
-        raise SystemExit(f"--layouts: unknown {unknown}; known {sorted(LAYOUTS)}")
     ckpt_path = run / f"cdit-{policy}.pt"
     if not ckpt_path.exists():
         raise SystemExit(f"--policy: no {ckpt_path}; train it with `train --policy {policy}`")
@@ -195,7 +193,37 @@ def export(run: Path, policy: str, layout_names: list[str], data: Path, out: Pat
     ae = load_autoencoder(run, torch.device("cpu"))
     model = CDiT(cfg.cdit)
     model.load_state_dict(ckpt["ema"])
+    log = [json.loads(l) for l in (run / "log.jsonl").read_text().splitlines()] if (run / "log.jsonl").exists() else []
+    last = lambda stage: next((r for r in reversed(log) if r["stage"] == stage), {})
+    training = {
+        "data": {"source": "worldpack sim dataset (training world seeds)", "frame_size": [cfg.autoencoder.image_size] * 2},
+        "policy": policy, "steps": ckpt["step"],
+        "init_from": ckpt.get("init_from"), "memory_focus": ckpt.get("memory_focus", 0.0),
+        "recipe": ckpt.get("recipe", {}),
+        # Absent in checkpoints from before plans recorded it: those plans used the target pose.
+        "plans_query": ckpt.get("plans_query", "target"),
+        "autoencoder_steps": last("autoencoder").get("step"),
+        "final_loss": last(f"cdit-{policy}").get("loss"),
+        "samples_per_s": last(f"cdit-{policy}").get("samples_per_s"),
+        "weights": "EMA",
+    }
+    write_model(cfg, ae, model, layout_names, data, out, half, training=training,
+                generated_level=ckpt.get("recipe", {}).get("generated_level", 0.0))
+
+
+def write_model(cfg: ModelConfig, ae, model: CDiT, layout_names: list[str], data: Path, out: Path, half: bool,
+                training: dict | None, generated_level: float = 0.0, metrics: bool = True, created_by: str = "python -m worldpack_model export",
+                tolerance: dict | None = None) -> None:
+    """Graphs, references (inputs from `data`'s first trajectories) and the
+    manifest of one model. `training` None: untrained weights (no training
+    record, no policy); `metrics` False skips the held-out figures."""
+    started = time.time()
+    tolerance = tolerance or {"abs": 1e-5, "rel": 1e-4}
+    unknown = [n for n in layout_names if n not in LAYOUTS]
+    if unknown:
+        raise SystemExit(f"--layouts: unknown {unknown}; known {sorted(LAYOUTS)}")
     model.eval()
+    ae.eval()
     if half:
         round_to_half(ae, model)
     out.mkdir(parents=True, exist_ok=True)
@@ -207,7 +235,7 @@ def export(run: Path, policy: str, layout_names: list[str], data: Path, out: Pat
     with torch.no_grad():
         for d in wdata.trajectories(data):
             rgb = torch.from_numpy(wdata.to_unit_range(np.load(d / "rgb.npy")))
-            z = torch.cat([ae.encoder(c) for c in rgb.split(256)]) * ae.scale
+            z = torch.cat([ae.encoder(c) for c in rgb.split(encode_chunk(cfg))]) * ae.scale
             np.save(latent_dir / f"{d.name}.npy", z.numpy().astype(np.float16))
 
     # Autoencoder graphs and references.
@@ -307,18 +335,16 @@ def export(run: Path, policy: str, layout_names: list[str], data: Path, out: Pat
 
     if cfg.cdit.warp:
         save_arrays(ref / "warp", warp_cases(data, ae))
-    metrics = measure(cfg, ae, model, data, latent_dir, layout_names, sched)
+    measured = measure(cfg, ae, model, data, latent_dir, layout_names, sched) if metrics else None
     for f in latent_dir.iterdir():
         f.unlink()
     latent_dir.rmdir()
 
     meta0 = json.loads((wdata.trajectories(data)[0] / "meta.json").read_text())
-    log = [json.loads(l) for l in (run / "log.jsonl").read_text().splitlines()] if (run / "log.jsonl").exists() else []
-    last = lambda stage: next((r for r in reversed(log) if r["stage"] == stage), {})
     manifest = {
         "format": MANIFEST_FORMAT,
         "name": out.name,
-        "created_by": "python -m worldpack_model export",
+        "created_by": created_by,
         "config": cfg.to_json(),
         "image": {"width": a.image_size, "height": a.image_size, "channels": 3, "layout": "NCHW, RGB",
                   "range": [-1.0, 1.0], "from_u8": "x / 127.5 - 1"},
@@ -352,7 +378,7 @@ def export(run: Path, policy: str, layout_names: list[str], data: Path, out: Pat
                          "without_source": "all zeros (no frame with depth)",
                          "reference": "reference/warp"}}
                if cfg.cdit.warp else {}),
-            **({"context_noise": {"observed_level": 0.0, "generated_level": ckpt.get("recipe", {}).get("generated_level", 0.0),
+            **({"context_noise": {"observed_level": 0.0, "generated_level": generated_level,
                                   "meaning": "the level the runtime puts in context_noise_r<rate> for observed and for generated frames"}}
                if cfg.cdit.context_noise else {}),
         },
@@ -371,28 +397,22 @@ def export(run: Path, policy: str, layout_names: list[str], data: Path, out: Pat
                       "respacing": "kept = unique(round(linspace(0, T-1, steps))); betas recomputed from the kept abar; the model gets the original index",
                       "ddim": "x_{k-1} = sqrt(abar_{k-1}) x0 + sqrt(1 - abar_{k-1} - sigma^2) eps + sigma z, sigma = eta sqrt((1-abar_{k-1})/(1-abar_k) (1 - abar_k/abar_{k-1}))",
                       "precision": "coefficients in float64, state in float32"},
-        "training": {
-            "data": {"source": "worldpack sim dataset (training world seeds)", "frame_size": [a.image_size, a.image_size]},
-            "policy": policy, "steps": ckpt["step"],
-            "init_from": ckpt.get("init_from"), "memory_focus": ckpt.get("memory_focus", 0.0),
-            "recipe": ckpt.get("recipe", {}),
-            # Absent in checkpoints from before plans recorded it: those plans used the target pose.
-            "plans_query": ckpt.get("plans_query", "target"),
-            "autoencoder_steps": last("autoencoder").get("step"),
-            "final_loss": last(f"cdit-{policy}").get("loss"),
-            "samples_per_s": last(f"cdit-{policy}").get("samples_per_s"),
-            "weights": "EMA",
-        },
-        "metrics": metrics,
+        **({"training": training} if training is not None else {}),
+        **({"metrics": measured} if measured is not None else {}),
         "reference": {
-            "tolerance": {"abs": 1e-5, "rel": 1e-4},
+            "tolerance": tolerance,
             "graphs": {"encoder": "reference/encoder", "decoder": "reference/decoder",
                        **{f"denoiser_{n}": f"reference/denoiser_{n}" for n in layout_names}},
             "traces": traces,
         },
     }
     (out / "manifest.json").write_text(json.dumps(manifest, indent=2))
-    print(f"exported {out} in {time.time() - started:.1f} s: " + json.dumps(metrics))
+    print(f"exported {out} in {time.time() - started:.1f} s" + (": " + json.dumps(measured) if measured else ""))
+
+
+def encode_chunk(cfg: ModelConfig) -> int:
+    """Images per encoder call: 256 at 64x64, fewer for larger frames, so memory stays near 1 GB."""
+    return max(1, 256 * 64 * 64 // cfg.autoencoder.image_size ** 2)
 
 
 @torch.no_grad()

@@ -22,7 +22,7 @@ import onnx
 import onnx.numpy_helper
 import torch
 
-from .autoencoder import Autoencoder
+from .autoencoder import Autoencoder, build as build_autoencoder
 from .cdit import CDiT
 from .config import ModelConfig
 from .export import context_keys
@@ -176,7 +176,7 @@ def recover(model_dir: Path, run: Path, policy: str | None) -> None:
     run.mkdir(parents=True, exist_ok=True)
     if (run / "config.json").exists() and json.loads((run / "config.json").read_text()) != cfg.to_json():
         raise SystemExit(f"--run: {run}/config.json differs from {model_dir}'s config; use an empty run folder")
-    ae = Autoencoder(cfg.autoencoder).eval()
+    ae = build_autoencoder(cfg.autoencoder).eval()
     load_state(ae.encoder, [Graph(model_dir / manifest["autoencoder"]["encoder"]["file"])], "")
     load_state(ae.decoder, [Graph(model_dir / manifest["autoencoder"]["decoder"]["file"])], "")
     ae.scale.fill_(float(manifest["autoencoder"]["latent_scale"]))

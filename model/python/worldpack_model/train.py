@@ -14,7 +14,7 @@ import torch.nn.functional as F
 from tqdm import tqdm
 
 from . import data as wdata
-from .autoencoder import Autoencoder, psnr
+from .autoencoder import Autoencoder, build as build_autoencoder, psnr
 from .cdit import CDiT
 from .config import LAYOUTS, ModelConfig
 from .diffusion import Schedule
@@ -55,7 +55,7 @@ def train_autoencoder(data: Path, run: Path, steps: int, batch: int, lr: float, 
     cfg = run_config(run)
     dev = pick_device(device)
     frames = wdata.Frames(data)
-    ae = Autoencoder(cfg.autoencoder).to(dev)
+    ae = build_autoencoder(cfg.autoencoder).to(dev)
     opt = torch.optim.AdamW(ae.parameters(), lr=lr, weight_decay=0.0)
     ckpt = run / "autoencoder.pt"
     step = 0
@@ -109,7 +109,7 @@ def load_autoencoder(run: Path, dev: torch.device) -> Autoencoder:
     ckpt = run / "autoencoder.pt"
     if not ckpt.exists():
         raise SystemExit(f"--run: no autoencoder.pt in {run}; run `train-ae` first")
-    ae = Autoencoder(cfg.autoencoder).to(dev)
+    ae = build_autoencoder(cfg.autoencoder).to(dev)
     ae.load_state_dict(torch.load(ckpt, map_location=dev)["model"])
     return ae.eval()
 
