@@ -57,7 +57,7 @@ pub struct Options {
     pub composites: Vec<String>,
 }
 
-fn parse_contrast(s: &str) -> Result<(String, String), String> {
+pub fn parse_contrast(s: &str) -> Result<(String, String), String> {
     match s.split_once(':') {
         Some((a, b)) if !a.is_empty() && !b.is_empty() => Ok((a.to_string(), b.to_string())),
         _ => Err(format!("expected A:B (two row names), got {s:?}")),

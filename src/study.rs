@@ -60,6 +60,9 @@ pub struct Options {
     /// Folder for the saved conditions and study.json.
     #[arg(long, default_value = "runs/study")]
     pub out: PathBuf,
+    /// A paired contrast, as A:B (row names; A minus B), in the clean condition and under each pose noise.
+    #[arg(long = "contrast", value_parser = crate::probe::parse_contrast)]
+    pub contrasts: Vec<(String, String)>,
 }
 
 impl Options {
@@ -77,7 +80,7 @@ impl Options {
             limit: self.limit,
             runtime: self.runtime.options(),
             out: None,
-            contrasts: Vec::new(),
+            contrasts: self.contrasts.clone(),
             composites: Vec::new(),
         };
         Settings { probe, vo: self.vo.clone(), quick: self.quick, rollout_frames: self.rollout_frames, out: self.out.clone() }
@@ -120,6 +123,12 @@ fn print(s: &Summary) {
         }
         for a in &c.selection {
             println!("  selection {:<20} Jaccard {:.3}  rank ρ {:.3}", a.policy, a.jaccard, a.rank);
+        }
+    }
+    if !s.contrasts.is_empty() {
+        println!("\nContrasts: A minus B, paired frame by frame in each condition (95% over trajectories)");
+        for c in &s.contrasts {
+            println!("  {:<24} {} − {}: {}", c.condition, c.a, c.b, interval(&c.psnr));
         }
     }
     println!("\nWhere methods fail (noise-free): PSNR, Δ vs the baseline and Δ vs nearest frame packing per stratum");

@@ -272,7 +272,7 @@ fn study_pairs_every_condition_and_resumes() {
     let (s, o) = (suite.to_str().unwrap(), out.to_str().unwrap());
     let args = [
         "study", "--suite", s, "--out", o, "--quick", "--steps", "2", "--sweep-steps", "1", "--stride", "4", "--latency-calls", "1", "--threads", "1", "--rollout-frames", "6", "--vo",
-        "poses-same.npy",
+        "poses-same.npy", "--contrast", "worldpack:baseline",
     ];
     ok(&args);
     let study = json(&out.join("study.json"));
@@ -318,6 +318,16 @@ fn study_pairs_every_condition_and_resumes() {
     }
     let reproject = rotated["rows"].as_array().unwrap().iter().find(|r| r["row"] == "reproject").unwrap();
     assert!(reproject["psnr_vs_clean"]["mean"].as_f64().unwrap() < 0.0, "warping with wrong poses should cost: {reproject}");
+
+    // A contrast in every condition: the paired mean is the difference of the rows' means, and the true poses change nothing.
+    let contrasts = study["contrasts"].as_array().unwrap();
+    let names: Vec<&str> = contrasts.iter().map(|c| c["condition"].as_str().unwrap()).collect();
+    assert_eq!(names, ["clean", "translation σ 0.25", "rotation σ 2.5°", "estimated poses (poses-same.npy)"]);
+    let mean = |c: &Value| c["psnr"]["mean"].as_f64().unwrap();
+    let psnr_of = |name: &str| at(points.iter().find(|p| p["name"] == name).unwrap(), "psnr");
+    assert!((mean(&contrasts[0]) - (psnr_of("worldpack") - psnr_of("baseline"))).abs() < 1e-9, "{}", contrasts[0]);
+    assert_eq!(mean(&contrasts[3]), mean(&contrasts[0]));
+    assert_ne!(mean(&contrasts[2]), mean(&contrasts[0]), "rotated poses change WorldPack's frames, not the baseline's");
 
     // Rollouts under the same poses are the noise-free rollouts, frame for frame.
     let rollouts = study["rollouts"].as_array().unwrap();
@@ -370,6 +380,9 @@ fn study_pairs_every_condition_and_resumes() {
     assert!(!bad.status.success());
     let err = String::from_utf8_lossy(&bad.stderr);
     assert!(err.contains("--vo: nope.npy"), "{err}");
+    let bad = run(&["study", "--suite", s, "--out", o, "--quick", "--contrast", "worldpack:nope"]);
+    let err = String::from_utf8_lossy(&bad.stderr);
+    assert!(!bad.status.success() && err.contains("--contrast") && err.contains("\"nope\""), "{err}");
     let _ = std::fs::remove_dir_all(&suite);
     let _ = std::fs::remove_dir_all(&out);
 }

@@ -262,6 +262,15 @@ pub fn study(o: &Settings, progress: &dyn Fn(Progress)) -> Result<Summary> {
         conditions.push(Condition { name, change, rows, timed: false });
     }
 
+    for (a, b) in &o.probe.contrasts {
+        for name in [a, b] {
+            if !conditions[0].rows.iter().any(|r| &r.name == name) {
+                let names: Vec<&str> = conditions[0].rows.iter().map(|r| r.name.as_str()).collect();
+                return Err(setting("--contrast", format!("no row called {name:?}; the rows are {}", names.join(", "))));
+            }
+        }
+    }
+
     let model_keys: Vec<String> = models.iter().map(|(_, m)| model_key(m.dir()).map_err(io(m.dir()))).collect::<Result<_>>()?;
     let dir = o.out.join("conditions");
     std::fs::create_dir_all(&dir).map_err(io(&o.out))?;
@@ -304,7 +313,7 @@ pub fn study(o: &Settings, progress: &dyn Fn(Progress)) -> Result<Summary> {
 
     let strata: Vec<Vec<TargetFeatures>> = trajectories.iter().map(|t| features(t, &t.return_frames(o.probe.stride))).collect::<Result<_, _>>()?;
     let parameters: Vec<Option<u64>> = models.iter().map(|(_, m)| m.manifest().denoiser.parameters).collect();
-    let summary = summarise(&results, &strata, &parameters, summarise_rollouts(&rollouts));
+    let summary = summarise(&results, &strata, &parameters, summarise_rollouts(&rollouts), &o.probe.contrasts);
     let path = o.out.join("study.json");
     let json = serde_json::json!({
         "format": "worldpack-study/1",
@@ -317,6 +326,7 @@ pub fn study(o: &Settings, progress: &dyn Fn(Progress)) -> Result<Summary> {
         "bootstrap": { "reps": BOOTSTRAP_REPS, "resampled": "trajectories", "level": 0.95 },
         "tradeoff": summary.tradeoff,
         "noise": summary.noise,
+        "contrasts": summary.contrasts,
         "strata": summary.strata,
         "rollouts": summary.rollouts,
         "recommended": summary.recommended,
@@ -623,10 +633,21 @@ pub struct StratumSummary {
     pub rows: Vec<StratumRow>,
 }
 
+/// Row `a` minus row `b` in one condition, paired frame by frame (`--contrast A:B`).
+#[derive(Serialize)]
+pub struct ConditionContrast {
+    pub condition: String,
+    pub a: String,
+    pub b: String,
+    pub psnr: Interval,
+}
+
 /// What a study measured (also written to `study.json`).
 pub struct Summary {
     pub tradeoff: Vec<TradeoffPoint>,
     pub noise: Vec<NoiseCondition>,
+    /// The `--contrast` pairs in the clean condition and under each pose noise.
+    pub contrasts: Vec<ConditionContrast>,
     pub strata: Vec<StratumSummary>,
     pub rollouts: Vec<RolloutCondition>,
     pub recommended: Option<Recommendation>,
@@ -678,7 +699,13 @@ fn column(x: &[TrajectoryScores], a: usize, metric: fn(&FrameScore) -> f64, keep
 }
 
 /// `parameters[m]`: model m's parameter count, when its manifest says.
-fn summarise(results: &[(Condition, Saved)], strata: &[Vec<TargetFeatures>], parameters: &[Option<u64>], rollouts: Vec<RolloutCondition>) -> Summary {
+fn summarise(
+    results: &[(Condition, Saved)],
+    strata: &[Vec<TargetFeatures>],
+    parameters: &[Option<u64>],
+    rollouts: Vec<RolloutCondition>,
+    pairs: &[(String, String)],
+) -> Summary {
     let all = |_: usize, _: &FrameScore| true;
     let (clean_c, clean) = &results[0];
     let row_index = |c: &Condition, name: &str| c.rows.iter().position(|r| r.name == name);
@@ -773,8 +800,17 @@ fn summarise(results: &[(Condition, Saved)], strata: &[Vec<TargetFeatures>], par
             }
         })
         .collect();
+    let mut contrasts = Vec::new();
+    for (c, s) in results.iter().filter(|(c, _)| matches!(c.change, Change::Clean | Change::Noise { .. } | Change::Poses { .. })) {
+        for (a, b) in pairs {
+            if let (Some(i), Some(j)) = (row_index(c, a), row_index(c, b)) {
+                let psnr = cluster_bootstrap(&paired(&s.scores, i, &s.scores, j, &all), BOOTSTRAP_REPS, 11);
+                contrasts.push(ConditionContrast { condition: c.name.clone(), a: a.clone(), b: b.clone(), psnr });
+            }
+        }
+    }
     let recommended = recommend(&tradeoff);
-    Summary { tradeoff, noise, strata, rollouts, recommended }
+    Summary { tradeoff, noise, contrasts, strata, rollouts, recommended }
 }
 
 fn load(dir: &Path, runtime: RuntimeOptions) -> Result<Model> {
