@@ -11,10 +11,13 @@
 //! - [`frustum`]: truncated view frusta (f64 planes + a `parry3d` polyhedron).
 //! - [`overlap`]: exact, Monte Carlo and WorldMem-style overlap estimators.
 //! - [`policy`]: rankings, packings, the [`ContextPlan`] and brute-force selection.
+//! - [`covisibility`]: occlusion-aware selection from coarse depth (frustum top-K, then
+//!   the share of the target's expected surface each frame saw unoccluded).
 //! - [`index`]: [`FrameMemory`], the R-tree-indexed store whose selection
 //!   equals brute force but skips frames that provably cannot enter.
 
 pub mod camera;
+pub mod covisibility;
 pub mod error;
 pub mod frustum;
 pub mod index;
