@@ -7,7 +7,10 @@
 use memory::overlap::exact_overlap;
 use memory::policy::{LatentGrid, PolicySpec};
 use memory::input::{IntrinsicsInput, PoseInput};
-use memory::{AngleUnit, Estimator, Frustum, InputError, MemoryFrame, Pose, Pose5Convention, select};
+use std::collections::HashMap;
+
+use memory::covisibility::{self, CoVisibility, DepthGrid};
+use memory::{AngleUnit, Estimator, FrameMemory, Frustum, InputError, MemoryFrame, Pose, Pose5Convention, select};
 use serde::Deserialize;
 use serde_json::{Value, json};
 
@@ -29,13 +32,16 @@ pub enum Request {
         query: ViewInput,
         candidates: Vec<ViewInput>,
     },
-    /// A context plan for a target view over stored frames.
+    /// A context plan for a target view over stored frames; with
+    /// `covisibility`, occlusion-aware (memory::covisibility) from the frames' `depth`.
     Select {
         policy: PolicySpec,
         target: ViewInput,
         frames: Vec<FrameInput>,
         #[serde(default)]
         latent: Option<LatentGrid>,
+        #[serde(default)]
+        covisibility: Option<CoVisibility>,
     },
 }
 
@@ -59,6 +65,10 @@ pub struct FrameInput {
     time: u64,
     pose: PoseInput,
     intrinsics: IntrinsicsInput,
+    /// Depth along the optical axis per pixel, row-major at the intrinsics'
+    /// size (world units; 0: nothing in range). Used by `covisibility`.
+    #[serde(default)]
+    depth: Option<Vec<f32>>,
 }
 
 /// Answers one request; errors name the offending field.
@@ -107,20 +117,38 @@ pub fn answer(request: &Request) -> Result<Value, InputError> {
             let exact: Vec<f64> = cs.iter().map(|c| exact_overlap(&q, c)).collect();
             Ok(json!({ "overlaps": overlaps, "exact": exact }))
         }
-        Request::Select { policy, target, frames, latent } => {
+        Request::Select { policy, target, frames, latent, covisibility } => {
             let policy = policy.clone().into_policy().map_err(|e| e.within("policy"))?;
             let target = target.frustum("target")?;
+            let settings = covisibility.map(|c| c.validated()).transpose()?;
             let mut stored = Vec::with_capacity(frames.len());
+            let mut depth = HashMap::new();
             for (i, f) in frames.iter().enumerate() {
                 let at = format!("frames[{i}]");
                 if stored.iter().any(|s: &MemoryFrame| s.id == f.id) {
                     return Err(InputError::Invalid { field: format!("{at}.id"), reason: format!("duplicate id {}", f.id) });
                 }
                 let frustum = ViewInput::frustum_of(&f.pose, &f.intrinsics).map_err(|e| e.within(&at))?;
+                if let (Some(c), Some(d)) = (&settings, &f.depth) {
+                    depth.insert(f.id, DepthGrid::pool(d, frustum.intrinsics(), c.cells).map_err(|e| e.within(&at))?);
+                }
                 stored.push(MemoryFrame { id: f.id, time: f.time, frustum });
             }
-            let plan = select(&policy, &target, &stored);
+            let (plan, covisibility) = match settings {
+                None => (select(&policy, &target, &stored), None),
+                Some(c) => {
+                    let mut memory = FrameMemory::new();
+                    for f in stored {
+                        memory.insert(f).expect("ids checked unique above");
+                    }
+                    let (plan, stats) = covisibility::select(&memory, &policy, &target, &c, |id| depth.get(&id))?;
+                    (plan, Some(stats))
+                }
+            };
             let mut out = json!({ "plan": plan, "empty": plan.is_empty() });
+            if let Some(stats) = covisibility {
+                out["covisibility"] = json!(stats);
+            }
             if let Some(grid) = latent {
                 let grid = grid.validated()?;
                 let (used, capacity) = plan.tokens(&grid);

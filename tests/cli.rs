@@ -72,6 +72,45 @@ fn geometry_answers_a_select_request_with_token_counts() {
     assert_eq!(v["plan"]["slots"][0]["frame"]["overlap"], 1.0);
 }
 
+/// Three frames facing a plane 9.5 units ahead of the target: the newest just
+/// behind the target, A a step further back with a wall right in front of its
+/// lens, B six units back with a clear view. Frustum overlap ranks A second;
+/// with their depth, co-visibility knows A saw nothing of the plane.
+#[test]
+fn geometry_selects_by_co_visibility_from_depth() {
+    let frame = |id: u32, z: f64, depth: f64| {
+        let depth = vec![depth.to_string(); 16 * 12].join(",");
+        format!(
+            r#"{{"id": {id}, "time": {id}, "pose": {{"c2w": {{"rotation": [[1,0,0],[0,1,0],[0,0,1]], "position": [0, 0, {z}]}}}},
+               "intrinsics": {{"hfov_deg": 60, "width": 16, "height": 12}}, "depth": [{depth}]}}"#
+        )
+    };
+    let frames = [frame(3, -0.5, 10.0), frame(2, -1.0, 0.5), frame(1, -6.0, 15.5)].join(",");
+    let request = |extra: &str| {
+        format!(
+            r#"{{"op": "select", "policy": {{"kind": "worldpack"}}{extra},
+                "target": {{"pose": {{"c2w": {{"rotation": [[1,0,0],[0,1,0],[0,0,1]], "position": [0, 0, 0]}}}}, "intrinsics": {{"hfov_deg": 60, "width": 16, "height": 12}}}},
+                "frames": [{frames}]}}"#
+        )
+    };
+    let order = |v: &serde_json::Value| -> Vec<u64> { v["plan"]["slots"].as_array().unwrap().iter().filter_map(|s| s["frame"]["id"].as_u64()).collect() };
+    let (code, out, err) = worldpack(&["geometry"], &request(""));
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(order(&serde_json::from_str(&out).unwrap()), [3, 2, 1], "by frustum overlap and recency");
+    let (code, out, err) = worldpack(&["geometry"], &request(r#", "covisibility": {"candidates": 8, "sources": 2, "cells": 8, "tolerance": 0.1}"#));
+    assert_eq!(code, 0, "{err}");
+    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(order(&v), [3, 1, 2], "{v}");
+    assert_eq!(v["covisibility"]["with_depth"], 3, "{v}");
+    assert_eq!(v["plan"]["slots"][2]["frame"]["overlap"], 0.0, "the wall hid the whole plane from frame 2: {v}");
+    // A depth map of the wrong size is named.
+    let bad = request(r#", "covisibility": {"candidates": 8, "sources": 2, "cells": 8, "tolerance": 0.1}"#).replacen("[10,", "[", 1);
+    let (code, out, _) = worldpack(&["geometry"], &bad);
+    assert_eq!(code, 2);
+    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(v["error"]["field"], "frames[0].depth", "{v}");
+}
+
 #[test]
 fn geometry_rejects_duplicate_frame_ids_by_field() {
     let frame = r#"{"id": 4, "time": 0, "pose": {"opencv": {"rvec": [0,0,0], "tvec": [0,0,0]}}, "intrinsics": {"fx": 30, "width": 64, "height": 64}}"#;
