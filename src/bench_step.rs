@@ -119,6 +119,8 @@ struct LayoutRow {
     /// Peak over the calls minus the resident size after loading; None when
     /// the high-water mark could not be reset.
     call_memory_mib: Option<f64>,
+    /// Whether the child process's high-water mark was reset after loading.
+    hwm_reset: bool,
 }
 
 #[derive(Serialize)]
@@ -190,6 +192,7 @@ pub fn run(dir: &Path, options: RuntimeOptions, steps: &[usize], calls: usize, j
         p95_ms,
         peak_mib: mib(q.peak_kib),
         call_memory_mib: q.hwm_reset.then(|| mib(q.peak_kib.saturating_sub(q.loaded_kib))),
+        hwm_reset: q.hwm_reset,
     };
     let report = Report {
         model: dir.display().to_string(),

@@ -135,6 +135,13 @@ fn bench_step_compares_the_two_contexts() {
     for key in ["time_ratio", "peak_ratio"] {
         assert!(r[key].as_f64().unwrap() > 0.0, "{key}");
     }
+    // The per-call memory is reported exactly when the high-water-mark reset took.
+    for layout in ["baseline", "worldpack"] {
+        let row = &r[layout];
+        let reset = row["hwm_reset"].as_bool().unwrap();
+        assert_eq!(row["call_memory_mib"].as_f64().is_some_and(|m| m > 0.0), reset, "{row}");
+    }
+    assert_eq!(r["call_memory_ratio"].is_null(), !(r["baseline"]["hwm_reset"] == true && r["worldpack"]["hwm_reset"] == true));
     let rows = r["next_frame"].as_array().unwrap();
     assert_eq!(rows.iter().map(|s| s["steps"].as_u64().unwrap()).collect::<Vec<_>>(), [1, 2]);
 }
