@@ -4,7 +4,9 @@
 use eval::stats::percentile;
 use std::time::Instant;
 
+use memory::covisibility::{self, CoVisibility, DepthGrid};
 use memory::overlap::MonteCarlo;
+use memory::workload::ground_depth;
 use memory::{ContextPlan, Estimator, FrameMemory, Frustum, Intrinsics, MemoryFrame, Policy, PolicyKind, select};
 use serde::Serialize;
 
@@ -40,6 +42,13 @@ pub struct Row {
     pub exact_evaluations_per_selection: f64,
     pub box_candidates_per_selection: f64,
     pub insert_us_per_frame: f64,
+    /// Occlusion-aware selection (memory::covisibility, default settings:
+    /// frustum top 64, then co-visibility on a 16-column depth grid) over
+    /// the same memory with every frame's coarse depth of the workload's ground.
+    pub covisibility_median_ms: f64,
+    pub covisibility_p95_ms: f64,
+    /// Its median over the indexed frustum selection's.
+    pub covisibility_vs_indexed: f64,
 }
 
 /// Times `f` on each query until `queries` are done or `budget_s` is spent (at least `min` runs).
@@ -107,6 +116,16 @@ pub fn run(workload: Workload, sizes: &[usize], queries: usize, progress: bool) 
                 v.sort_by(f64::total_cmp);
             }
             let mc = timed(queries, 1, 4.0, |q| select(&monte_carlo, &targets[q], &frames));
+            let settings = CoVisibility::default();
+            let depth: Vec<DepthGrid> = frames.iter().map(|f| ground_depth(&f.frustum, settings.cells)).collect();
+            // As a session would: each target warm-starts from the plan before it.
+            let mut last: Option<ContextPlan> = None;
+            let covisible = timed(queries, 1, 4.0, |q| {
+                let (plan, stats) = covisibility::select(&memory, &worldpack, &targets[q], &settings, last.as_ref(), |id| depth.get(id as usize))
+                    .expect("valid settings");
+                last = Some(plan);
+                stats
+            });
             let med = |v: &[f64]| percentile(v, 0.5);
             Row {
                 frames: n,
@@ -121,6 +140,9 @@ pub fn run(workload: Workload, sizes: &[usize], queries: usize, progress: bool) 
                 exact_evaluations_per_selection: evaluations as f64 / queries as f64,
                 box_candidates_per_selection: candidates as f64 / queries as f64,
                 insert_us_per_frame: insert_us,
+                covisibility_median_ms: med(&covisible),
+                covisibility_p95_ms: percentile(&covisible, 0.95),
+                covisibility_vs_indexed: med(&covisible) / med(&indexed),
             }
         })
         .collect()
@@ -139,12 +161,12 @@ pub fn loglog_slope(rows: &[Row]) -> f64 {
 pub fn print(workload: Workload, rows: &[Row]) {
     println!("selection (score + plan), WorldPack policy, 22 slots, one core, workload {workload:?}");
     println!(
-        "{:>8} | {:>9} {:>9} | {:>10} {:>10} | {:>10} {:>4} | {:>9} {:>9} | {:>8} {:>8} | {:>7}",
-        "frames", "idx med", "idx p95", "brute med", "brute p95", "MC10k med", "reps", "x brute", "x MC", "evals", "boxes", "ins µs"
+        "{:>8} | {:>9} {:>9} | {:>10} {:>10} | {:>10} {:>4} | {:>9} {:>9} | {:>8} {:>8} | {:>7} | {:>9} {:>7}",
+        "frames", "idx med", "idx p95", "brute med", "brute p95", "MC10k med", "reps", "x brute", "x MC", "evals", "boxes", "ins µs", "covis med", "x idx"
     );
     for r in rows {
         println!(
-            "{:>8} | {:>7.3}ms {:>7.3}ms | {:>8.2}ms {:>8.2}ms | {:>8.1}ms {:>4} | {:>8.1}x {:>8.0}x | {:>8.1} {:>8.1} | {:>7.1}",
+            "{:>8} | {:>7.3}ms {:>7.3}ms | {:>8.2}ms {:>8.2}ms | {:>8.1}ms {:>4} | {:>8.1}x {:>8.0}x | {:>8.1} {:>8.1} | {:>7.1} | {:>7.3}ms {:>6.2}x",
             r.frames,
             r.indexed_median_ms,
             r.indexed_p95_ms,
@@ -156,7 +178,9 @@ pub fn print(workload: Workload, rows: &[Row]) {
             r.speedup_vs_brute_mc,
             r.exact_evaluations_per_selection,
             r.box_candidates_per_selection,
-            r.insert_us_per_frame
+            r.insert_us_per_frame,
+            r.covisibility_median_ms,
+            r.covisibility_vs_indexed
         );
     }
     if rows.len() >= 2 {

@@ -141,7 +141,7 @@ pub fn answer(request: &Request) -> Result<Value, InputError> {
                     for f in stored {
                         memory.insert(f).expect("ids checked unique above");
                     }
-                    let (plan, stats) = covisibility::select(&memory, &policy, &target, &c, |id| depth.get(&id))?;
+                    let (plan, stats) = covisibility::select(&memory, &policy, &target, &c, None, |id| depth.get(&id))?;
                     (plan, Some(stats))
                 }
             };

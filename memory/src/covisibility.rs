@@ -5,8 +5,10 @@
 //! will show did each stored frame see, unoccluded?
 //!
 //! Two stages, so the cost stays a small multiple of the frustum path:
-//! 1. the `candidates` frames that overlap the target's frustum most (the
-//!    indexed frustum selection, [`Policy::best_overlap_frames`]);
+//! 1. the `candidates` best frames by the policy's own frustum score
+//!    (overlap minus the recency penalty, against the policy's query view:
+//!    for WorldPack the newest frame's, one step from the target; the
+//!    indexed selection);
 //! 2. the target's expected surface: the coarse depth of the newest stored
 //!    frame with depth (the paper's query view p_t, one step from the target)
 //!    and of the best candidates, `sources` frames in all, splatted into the
@@ -26,8 +28,8 @@ use serde::{Deserialize, Serialize};
 
 use crate::error::InputError;
 use crate::index::FrameMemory;
-use crate::policy::{ContextPlan, Policy, SelectedFrame, age, rank_order};
-use crate::{Frustum, Intrinsics, Pose};
+use crate::policy::{ContextPlan, Packing, Policy, PolicyKind, Ranking, SelectedFrame, age, rank_order};
+use crate::{Estimator, Frustum, Intrinsics, Pose};
 
 /// A frame's depth on a coarse grid: per cell, the nearest surface recorded
 /// in it (depth along the optical axis, world units; 0: nothing in range).
@@ -102,7 +104,7 @@ pub struct CoVisibility {
 
 impl Default for CoVisibility {
     fn default() -> Self {
-        CoVisibility { candidates: 64, sources: 3, cells: 16, tolerance: 0.1 }
+        CoVisibility { candidates: 32, sources: 3, cells: 16, tolerance: 0.1 }
     }
 }
 
@@ -181,20 +183,33 @@ pub struct CoVisibilityStats {
 
 /// Selects by co-visibility (module docs): `policy` gives the packing and
 /// the score weights; `depth_of` the coarse depth of a stored frame, if any.
-/// Without any candidate depth this is `policy`'s frustum-overlap ranking
-/// over the candidates against the target.
+/// Without any candidate depth this is `policy`'s own frustum-score ranking.
+/// `previous` (the last plan for a nearby target) only speeds the first stage up.
 pub fn select<'a>(
     memory: &FrameMemory,
     policy: &Policy,
     target: &Frustum,
     settings: &CoVisibility,
+    previous: Option<&ContextPlan>,
     depth_of: impl Fn(u64) -> Option<&'a DepthGrid>,
 ) -> Result<(ContextPlan, CoVisibilityStats), InputError> {
     let settings = settings.validated()?;
-    let (first, _) = memory.select(&Policy::best_overlap_frames(settings.candidates), target, None);
+    // Stage 1 scores like the policy, against its own query view (for
+    // WorldPack the newest frame, one step from the target), so the index
+    // prunes as it does there; it keeps `candidates` frames.
+    let stage1 = Policy {
+        kind: PolicyKind::WorldPack,
+        ranking: Ranking::Score,
+        packing: Packing::uncompressed(settings.candidates),
+        estimator: Estimator::Exact,
+        weights: policy.weights,
+        keep_last: false,
+        query: policy.query,
+    };
+    let (first, _) = memory.select(&stage1, target, previous);
     let candidates: Vec<SelectedFrame> = first.selected().map(|(_, f)| *f).collect();
     let posed = |f: &SelectedFrame| memory.get(f.id).map(|m| m.frustum.pose());
-    let newest = memory.frames().iter().filter(|f| depth_of(f.id).is_some()).max_by_key(|f| (f.time, f.id)).map(|f| f.id);
+    let newest = memory.newest_first().find(|f| depth_of(f.id).is_some()).map(|f| f.id);
     let mut source_ids: Vec<u64> = newest.into_iter().collect();
     source_ids.extend(candidates.iter().map(|f| f.id).filter(|&id| Some(id) != newest && depth_of(id).is_some()));
     source_ids.truncate(settings.sources);
@@ -203,7 +218,7 @@ pub fn select<'a>(
     let k = target.intrinsics();
     let rows = (settings.cells as f64 * k.height as f64 / k.width as f64).round().max(1.0) as u32;
     let surface = expected_surface(target.pose(), &k.resized(settings.cells, rows)?, &sources);
-    let t_now = memory.frames().iter().map(|f| f.time).max().unwrap_or(0);
+    let t_now = memory.newest_first().next().map_or(0, |f| f.time);
     let mut with_depth = 0;
     let mut ranked: Vec<SelectedFrame> = candidates
         .iter()
@@ -288,7 +303,7 @@ mod tests {
         let frustum_first = order(&memory.select(&Policy::best_overlap_frames(3), &target, None).0);
         assert_eq!(frustum_first, [newest, a, b], "frustum overlap ranks the frame behind the wall above B");
 
-        let (plan, stats) = select(&memory, &policy, &target, &CoVisibility::default(), |id| depth.get(&id)).unwrap();
+        let (plan, stats) = select(&memory, &policy, &target, &CoVisibility::default(), None, |id| depth.get(&id)).unwrap();
         assert_eq!(order(&plan), [newest, b, a], "co-visibility sees through the trick");
         assert_eq!((stats.candidates, stats.with_depth), (3, 3));
         assert!(stats.surface_points > 100, "{stats:?}");
@@ -296,7 +311,7 @@ mod tests {
         assert!(seen[&newest] > 0.9 && seen[&b] > 0.2 && seen[&a] < 0.05, "co-visibility {seen:?}");
 
         // Without depth the stage falls back to frustum overlap against the target.
-        let (plan, stats) = select(&memory, &policy, &target, &CoVisibility::default(), |_| None).unwrap();
+        let (plan, stats) = select(&memory, &policy, &target, &CoVisibility::default(), None, |_| None).unwrap();
         assert_eq!((stats.with_depth, stats.surface_points), (0, 0));
         assert_eq!(order(&plan)[1], a);
     }

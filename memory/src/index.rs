@@ -177,6 +177,11 @@ impl FrameMemory {
         &self.frames
     }
 
+    /// All frames, the most recent first (by time, then id).
+    pub fn newest_first(&self) -> impl Iterator<Item = &MemoryFrame> {
+        self.by_recency.iter().rev().map(|&s| &self.frames[s])
+    }
+
     /// Adds a frame. Ids must be unique; times may arrive out of order.
     pub fn insert(&mut self, frame: MemoryFrame) -> Result<(), InputError> {
         if self.slot_of.contains_key(&frame.id) {

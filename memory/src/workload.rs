@@ -3,6 +3,7 @@
 
 use glam::{DMat3, DVec3, EulerRot};
 
+use crate::covisibility::DepthGrid;
 use crate::rng::SplitMix64;
 use crate::{Frustum, Intrinsics, Pose};
 
@@ -32,4 +33,23 @@ pub fn frusta(workload: Workload, n: usize, seed: u64, k: Intrinsics) -> Vec<Fru
             Frustum::new(pose, k).expect("valid workload intrinsics")
         })
         .collect()
+}
+
+/// The workload's ground, y = 64 (the cameras stand 1.6 above it): a
+/// frame's coarse depth of it, `cells` columns, 0 where a ray misses it
+/// within range. What occlusion-aware selection reads in the benchmarks.
+pub fn ground_depth(frustum: &Frustum, cells: u32) -> DepthGrid {
+    let k = frustum.intrinsics();
+    let rows = ((cells as f64 * k.height as f64 / k.width as f64).round() as u32).max(1);
+    let grid = k.resized(cells, rows).expect("workload intrinsics resize");
+    let pose = frustum.pose();
+    let mut depth = Vec::with_capacity((cells * rows) as usize);
+    for v in 0..rows {
+        for u in 0..cells {
+            let ray = pose.rotation() * grid.unproject(glam::DVec2::new(u as f64, v as f64), 1.0);
+            let t = (64.0 - pose.position().y) / ray.y;
+            depth.push(if t > grid.near && t <= grid.far { t as f32 } else { 0.0 });
+        }
+    }
+    DepthGrid { intrinsics: grid, depth }
 }
