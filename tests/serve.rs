@@ -407,6 +407,19 @@ fn a_geometry_model_warps_the_best_observed_frame_with_depth_across_restarts() {
     let (code, r) = s.post(&format!("/v1/sessions/{id}/step"), &json!({ "action": {}, "pose": pose0 }));
     assert_eq!((code, r["index"].as_u64()), (200, Some(8)), "{r}");
     assert_eq!(r["selection"]["warp_frames"][0].as_u64(), Some(0), "{r}");
+    // Occlusion-aware selection reads the restored depth: three observed frames have it.
+    let select = |body: Value| s.post(&format!("/v1/sessions/{id}/select"), &body);
+    let (code, r) = select(json!({ "pose": pose0, "covisibility": {} }));
+    assert_eq!(code, 200, "{r}");
+    let c = &r["covisibility"];
+    assert!(c["candidates"].as_u64().unwrap() >= 3 && c["with_depth"] == 3 && c["surface_points"].as_u64().unwrap() > 0, "{r}");
+    let (code, r) = select(json!({ "pose": pose0 }));
+    assert!(code == 200 && r.get("covisibility").is_none(), "{r}");
+    for (bad, field) in [(json!({ "cells": 0 }), "covisibility.cells"), (json!({ "tolerance": -1 }), "covisibility.tolerance"), (json!({ "nope": 1 }), "covisibility")] {
+        let (code, r) = select(json!({ "pose": pose0, "covisibility": bad }));
+        assert_eq!(code, 400, "{r}");
+        assert!(r["error"]["field"].as_str().unwrap().starts_with(field), "{field}: {r}");
+    }
     s.kill();
     // With --overlay-warp what the sources show is kept as seen: in a new session, at frame 0's own
     // pose, frame 0 (the only one with depth) warps onto every pixel, so the step gives it back.

@@ -4,8 +4,10 @@
 use std::collections::HashMap;
 use std::sync::Arc;
 
+use memory::covisibility::DepthGrid;
 use memory::{ContextPlan, FrameMemory, Frustum, Intrinsics, MemoryFrame, Policy, PolicySpec, Pose};
 use model::WarpSource;
+use model::warp::DEPTH_UNIT_M;
 use world::World;
 use motion::{Action, Kinematic, MotionModel};
 use world::agent::PlayerState;
@@ -115,6 +117,20 @@ impl Session {
         self.depth_memory.insert(MemoryFrame { id: index, time: f.time, frustum })?;
         self.depth_frames.insert(index, DepthFrame { rgb, depth_mm });
         Ok(())
+    }
+
+    /// Every observed frame's depth pooled to `cells` columns (metres;
+    /// memory::covisibility), by frame index.
+    pub fn depth_grids(&self, cells: u32) -> Result<HashMap<u64, DepthGrid>, ApiError> {
+        let k = self.intrinsics();
+        self.depth_frames
+            .iter()
+            .map(|(&id, d)| {
+                let metres: Vec<f32> = d.depth_mm.iter().map(|&mm| (mm as f64 * DEPTH_UNIT_M) as f32).collect();
+                let grid = DepthGrid::pool(&metres, k, cells).map_err(|e| ApiError::bad("covisibility.cells", e.to_string()))?;
+                Ok((id, grid))
+            })
+            .collect()
     }
 
     /// The `count` observed frames with depth that overlap `target` most,
