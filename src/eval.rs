@@ -76,6 +76,9 @@ pub struct Options {
     /// (repeatable; default: the baseline, the composite reference).
     #[arg(long = "composite")]
     pub composites: Vec<String>,
+    /// A model row to run again with occlusion-aware selection of its plans and warp sources, as a row "NAME_covisible" (repeatable).
+    #[arg(long = "covisible")]
+    pub covisible: Vec<String>,
 }
 
 impl Options {
@@ -101,6 +104,7 @@ impl Options {
             strip: self.strip.clone(),
             strip_frames: self.strip_frames,
             composites: self.composites.clone(),
+            covisible: self.covisible.clone(),
         }
     }
 }

@@ -138,6 +138,22 @@ enum SimCommand {
         #[arg(long, value_delimiter = ',', default_value = "5,15,30,50")]
         ranges: Vec<i32>,
     },
+    /// Write the occluder suite: a wall beside the way back hides it from the frames that stand closest to it (test world seeds; docs/geometry.md).
+    Occluders {
+        #[arg(long)]
+        out: PathBuf,
+        /// Scenes (one trajectory each).
+        #[arg(long, default_value_t = 12, value_parser = clap::value_parser!(u32).range(1..=1000))]
+        count: u32,
+        /// Length of the wall and of the way back, in blocks.
+        #[arg(long, default_value_t = 12, value_parser = clap::value_parser!(i32).range(4..=40))]
+        range: i32,
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+        /// Frame size WxH.
+        #[arg(long, default_value = "64x64", value_parser = sim::parse_size)]
+        size: (u32, u32),
+    },
     /// Write training data: loop-style trajectories and free exploration (training world seeds).
     Dataset {
         #[arg(long, value_parser = clap::value_parser!(u32).range(1..=1_000_000))]
@@ -315,6 +331,9 @@ fn main() -> ExitCode {
         Command::Sim { what } => match what {
             SimCommand::Loopnav { out, per_cell, seed, size, tasks, ranges } => {
                 report(sim::loopnav(&out, per_cell as usize, seed, size, &tasks, &ranges), "sim loopnav")
+            }
+            SimCommand::Occluders { out, count, range, seed, size } => {
+                report(sim::occluders(&out, count as usize, range, seed, size), "sim occluders")
             }
             SimCommand::Dataset { trajectories, out, seed, size } => {
                 report(sim::dataset(&out, trajectories as usize, seed, size), "sim dataset")

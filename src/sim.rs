@@ -72,6 +72,10 @@ pub fn loopnav(out: &Path, per_cell: usize, seed: u64, size: (u32, u32), tasks: 
     write_plan(out, "loopnav", seed, &suite::loopnav_plan(seed, per_cell, tasks, ranges), size)
 }
 
+pub fn occluders(out: &Path, count: usize, range: i32, seed: u64, size: (u32, u32)) -> Result<()> {
+    write_plan(out, "occluders", seed, &suite::occluder_plan(seed, count, range), size)
+}
+
 pub fn dataset(out: &Path, trajectories: usize, seed: u64, size: (u32, u32)) -> Result<()> {
     write_plan(out, "dataset", seed, &suite::dataset_plan(seed, trajectories), size)
 }

@@ -419,3 +419,38 @@ fn a_model_changed_in_place_is_not_mistaken_for_its_saved_rows() {
         let _ = std::fs::remove_dir_all(dir);
     }
 }
+
+/// The occluder suite and occlusion-aware selection in rollouts: the geometry
+/// model runs once with frustum-overlap plans and warp sources and once with
+/// co-visible ones, on two walled scenes.
+#[test]
+fn occluder_scenes_and_co_visible_rollouts() {
+    let suite = temp("occluders");
+    ok(&["sim", "occluders", "--count", "2", "--range", "6", "--seed", "3", "--out", suite.to_str().unwrap()]);
+    let index = json(&suite.join("index.json"));
+    assert_eq!(index["kind"], "occluders");
+    for t in index["trajectories"].as_array().unwrap() {
+        assert_eq!(t["task"], "occluder");
+        let (frames, back) = (t["frames"].as_u64().unwrap(), t["returning_point"].as_u64().unwrap());
+        assert!(back > 20 && frames > back + 10, "an exploration around the wall and a way back: {t}");
+    }
+    let out = temp("occluders-out");
+    let geometry = root().join("fixtures/variants/worldpack_geometry");
+    let extra = format!("worldpack_geometry={}", geometry.display());
+    let args = ["eval", "--suite", suite.to_str().unwrap(), "--out", out.to_str().unwrap(), "--max-frames", "4", "--steps", "2", "--threads", "1",
+        "--policies", "baseline", "--no-references", "--extra", &extra, "--covisible", "worldpack_geometry"];
+    ok(&args);
+    let results = json(&out.join("results.json"));
+    let rows: Vec<&str> = results["rows"].as_array().unwrap().iter().map(|r| r["name"].as_str().unwrap()).collect();
+    assert_eq!(rows, ["baseline", "worldpack_geometry", "worldpack_geometry_covisible"]);
+    for per_traj in results["per_frame"]["worldpack_geometry_covisible"].as_array().unwrap() {
+        let frames = per_traj.as_array().unwrap();
+        assert_eq!(frames.len(), 4);
+        assert!(frames.iter().all(|f| f["psnr"].as_f64().unwrap() > 5.0), "{per_traj}");
+    }
+    let bad = run(&["eval", "--suite", suite.to_str().unwrap(), "--out", out.to_str().unwrap(), "--covisible", "nope", "--no-references"]);
+    let err = String::from_utf8_lossy(&bad.stderr);
+    assert!(!bad.status.success() && err.contains("--covisible") && err.contains("nope"), "{err}");
+    let _ = std::fs::remove_dir_all(&suite);
+    let _ = std::fs::remove_dir_all(&out);
+}

@@ -10,6 +10,7 @@
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
+use memory::covisibility::CoVisibility;
 use memory::{Policy, PolicyKind};
 use model::{Method, Model, RuntimeOptions, Sampler};
 use serde::{Deserialize, Serialize};
@@ -59,6 +60,9 @@ pub struct Settings {
     pub strip: Vec<String>,
     /// Frames per row of the picture, evenly spaced over the return leg.
     pub strip_frames: usize,
+    /// Model rows whose policy runs again with occlusion-aware selection of
+    /// its plans and warp sources (memory::covisibility), as a row "NAME_covisible" each.
+    pub covisible: Vec<String>,
     /// Model rows whose predictions fill the fused warp's holes in a
     /// composite row each (with the references; empty: the baseline).
     pub composites: Vec<String>,
@@ -231,6 +235,13 @@ pub fn evaluate(s: &Settings, progress: &dyn Fn(Progress)) -> Result<Evaluation,
     }
     for (name, m) in &extras {
         rows.push((Row { name: name.clone(), predictor: Predictor::Model { model: m, policy: m.trained_policy(), sampler: sampler(m)? } }, Some(m)));
+    }
+    for name in &s.covisible {
+        let Some((Predictor::Model { model, policy, .. }, m)) = rows.iter().find(|(r, _)| &r.name == name).map(|(r, m)| (&r.predictor, *m)) else {
+            return Err(setting("--covisible", format!("no model row called {name:?}")));
+        };
+        let predictor = Predictor::CoVisible { model, policy: policy.clone(), sampler: sampler(model)?, settings: CoVisibility::default() };
+        rows.push((Row { name: format!("{name}_covisible"), predictor }, m));
     }
     if let Some(dup) = rows.iter().enumerate().find(|(i, (r, _))| rows[..*i].iter().any(|(q, _)| q.name == r.name)) {
         return Err(setting("--extra", format!("two rows are called {:?}", dup.1.0.name)));

@@ -6,6 +6,7 @@
 use std::collections::HashMap;
 use std::time::Instant;
 
+use memory::covisibility::CoVisibility;
 use memory::{ContextPlan, FrameMemory, Intrinsics, MemoryFrame, Policy};
 use model::generate::frame_to_tensor;
 use model::pack::ContextFrame;
@@ -42,6 +43,9 @@ pub enum Predictor<'a> {
     /// The composite reference: that fused warp where it lands (no filling),
     /// a model's prediction in its holes.
     Composite { model: &'a Model, policy: Policy, sampler: Sampler },
+    /// A model whose plans and warp sources are chosen by co-visibility from
+    /// the observed frames' depth (memory::covisibility); rollouts only.
+    CoVisible { model: &'a Model, policy: Policy, sampler: Sampler, settings: CoVisibility },
 }
 
 
@@ -55,7 +59,7 @@ impl Predictor<'_> {
     /// The memory policy a row selects with (references: the best-overlap frames).
     pub fn policy(&self) -> Policy {
         match self {
-            Predictor::Model { policy, .. } | Predictor::Composite { policy, .. } => policy.clone(),
+            Predictor::Model { policy, .. } | Predictor::Composite { policy, .. } | Predictor::CoVisible { policy, .. } => policy.clone(),
             Predictor::Copy | Predictor::Reproject => Policy::best_overlap(),
             Predictor::ReprojectFused => Policy::best_overlap_frames(FUSED_FRAMES),
         }
@@ -347,6 +351,7 @@ pub fn probe_trajectory(
                     progress(1);
                 }
             }
+            Predictor::CoVisible { .. } => return Err(ProbeError::Invalid(format!("{}: co-visible rows run in rollouts (`worldpack eval`) only", row.name))),
         }
         scores.push(out);
     }
@@ -384,6 +389,7 @@ pub fn latency_ms(traj: &Trajectory, row: &Row, latents: &[Vec<f32>], calls: usi
                         std::hint::black_box(img);
                     })?;
                 }
+                Predictor::CoVisible { .. } => return Err(ProbeError::Invalid(format!("{}: co-visible rows run in rollouts only", row.name))),
                 reference => {
                     std::hint::black_box(reference_image(traj, reference, &plan, t));
                 }

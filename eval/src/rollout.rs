@@ -4,7 +4,11 @@
 //! joining the memory that later frames select from. Trajectories run in
 //! lockstep so one denoiser call serves a whole batch of them.
 
+use std::collections::HashMap;
+
+use memory::covisibility::{self, DepthGrid};
 use memory::{ContextPlan, FrameMemory, Frustum, MemoryFrame, Policy};
+use model::warp::DEPTH_UNIT_M;
 use model::pack::ContextFrame;
 use model::{Request, WarpSource};
 
@@ -28,8 +32,21 @@ fn observed(frusta: &[Frustum], upto: usize) -> Result<FrameMemory, ProbeError> 
     Ok(store)
 }
 
+/// Frames `0..upto` of `traj`, their depth pooled to `cells` columns (metres).
+fn coarse_depth(traj: &Trajectory, upto: usize, cells: u32) -> Result<HashMap<u64, DepthGrid>, ProbeError> {
+    (0..upto)
+        .map(|t| {
+            let metres: Vec<f32> = traj.depth(t).iter().map(|&mm| (mm as f64 * DEPTH_UNIT_M) as f32).collect();
+            let grid = DepthGrid::pool(&metres, &traj.intrinsics, cells).map_err(|e| ProbeError::Invalid(e.to_string()))?;
+            Ok((t as u64, grid))
+        })
+        .collect()
+}
+
 struct Run<'a> {
     traj: &'a Trajectory,
+    /// Co-visible rows: the exploration's coarse depth, by frame.
+    depth: HashMap<u64, DepthGrid>,
     frusta: Vec<Frustum>,
     store: FrameMemory,
     /// The exploration alone: where a geometry model's warp sources come from.
@@ -116,9 +133,13 @@ pub fn rollout_as(
             let (scores, frames) = trajs.iter().map(|t| reference(t, &row.predictor, max_frames, scorer, progress)).collect::<Result<Vec<_>, _>>()?.into_iter().unzip();
             Ok(RowOutput { scores, frames })
         }
-        Predictor::Model { model, policy, sampler } | Predictor::Composite { model, policy, sampler } => {
+        Predictor::CoVisible { model, policy, sampler, .. } | Predictor::Model { model, policy, sampler } | Predictor::Composite { model, policy, sampler } => {
             model.layout_for(&policy.packing)?; // before any work: a policy the model cannot take fails at once
             let warp_policy = crate::probe::warp_policy(model);
+            let covisibility = match &row.predictor {
+                Predictor::CoVisible { settings, .. } => Some(settings.validated().map_err(|e| ProbeError::Invalid(e.to_string()))?),
+                _ => None,
+            };
             // A composite overlays the fused warp of the best observed frames and re-encodes the result.
             let composite = matches!(row.predictor, Predictor::Composite { .. }).then(|| Policy::best_overlap_frames(FUSED_FRAMES));
             let warps = warp_policy.is_some() || composite.is_some();
@@ -128,7 +149,13 @@ pub fn rollout_as(
                 .map(|(traj, lat)| {
                     let range = rollout_frames(traj, max_frames);
                     let frusta = traj.frusta()?;
+                    // Co-visibility reads the exploration's depth; generated frames have none.
+                    let depth = match &covisibility {
+                        Some(c) => coarse_depth(traj, range.start, c.cells)?,
+                        None => HashMap::new(),
+                    };
                     Ok(Run {
+                        depth,
                         store: observed(&frusta, range.start)?,
                         observed: observed(&frusta, if warps { range.start } else { 0 })?,
                         latents: lat[..range.start].to_vec(),
@@ -152,10 +179,20 @@ pub fn rollout_as(
                     let mut sources = Vec::with_capacity(chunk.len());
                     for &i in chunk {
                         let r = &mut runs[i];
-                        let (plan, _) = r.store.select(policy, &r.frusta[r.next], r.previous.as_ref());
+                        let target = &r.frusta[r.next];
+                        let invalid = |e: memory::InputError| ProbeError::Invalid(e.to_string());
+                        let plan = match &covisibility {
+                            None => r.store.select(policy, target, r.previous.as_ref()).0,
+                            Some(c) => covisibility::select(&r.store, policy, target, c, r.previous.as_ref(), |id| r.depth.get(&id)).map_err(invalid)?.0,
+                        };
+                        let source = match (&warp_policy, &covisibility) {
+                            (None, _) => None,
+                            (Some(p), None) => Some(r.observed.select(p, target, None).0),
+                            (Some(p), Some(c)) => Some(covisibility::select(&r.observed, p, target, c, None, |id| r.depth.get(&id)).map_err(invalid)?.0),
+                        };
                         r.previous = Some(plan.clone());
                         plans.push(plan);
-                        sources.push(warp_policy.as_ref().map(|p| r.observed.select(p, &r.frusta[r.next], None).0));
+                        sources.push(source);
                     }
                     let warp_sources: Vec<Vec<WarpSource>> =
                         chunk.iter().zip(&sources).map(|(&i, s)| s.as_ref().map_or_else(Vec::new, |p| warp_sources(runs[i].traj, p))).collect();

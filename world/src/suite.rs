@@ -13,7 +13,7 @@ use crate::npy;
 use crate::picture;
 use crate::render::{RenderSettings, render};
 use crate::terrain::World;
-use crate::trajectory::{Task, Trajectory, TrajectorySpec, generate};
+use crate::trajectory::{Task, Trajectory, TrajectorySpec, generate, generate_occluder};
 
 pub const TRAJECTORY_FORMAT: &str = "worldpack-trajectory/1";
 pub const SUITE_FORMAT: &str = "worldpack-suite/1";
@@ -104,6 +104,21 @@ pub fn dataset_plan(seed: u64, trajectories: usize) -> Vec<Planned> {
         .collect()
 }
 
+/// The occluder suite: `count` occluder scenes (`trajectory::generate_occluder`)
+/// with walls `range` blocks long, on test world seeds.
+pub fn occluder_plan(seed: u64, count: usize, range: i32) -> Vec<Planned> {
+    (0..count)
+        .map(|i| {
+            let parts = [Task::Occluder as i64, range as i64, i as i64];
+            Planned {
+                name: format!("occluder-r{range:02}-{i:03}"),
+                spec: TrajectorySpec { task: Task::Occluder, range, world_seed: Split::Test.world_seed(seed, &parts), seed: hash(seed, &parts) },
+                max_steps: 1200,
+            }
+        })
+        .collect()
+}
+
 /// Generates the trajectory, moving to another world of the same split
 /// (seeded by the attempt number) when one cannot hold it.
 pub fn realise(planned: &Planned) -> Result<(World, Trajectory), String> {
@@ -114,8 +129,12 @@ pub fn realise(planned: &Planned) -> Result<(World, Trajectory), String> {
             let split = Split::of_world_seed(planned.spec.world_seed);
             spec.world_seed = split.world_seed(planned.spec.world_seed, &[attempt]);
         }
-        let world = World::generate(spec.world_seed);
-        match generate(&world, &spec, planned.max_steps) {
+        let mut world = World::generate(spec.world_seed);
+        let walked = match spec.task {
+            Task::Occluder => generate_occluder(&mut world, &spec, planned.max_steps),
+            _ => generate(&world, &spec, planned.max_steps),
+        };
+        match walked {
             Ok(t) => return Ok((world, t)),
             Err(e) => last_error = e.to_string(),
         }

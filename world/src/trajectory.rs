@@ -20,6 +20,8 @@ pub enum Task {
     Abca,
     Tour,
     Wander,
+    /// The occluder scene ([`generate_occluder`]): memory behind a wall.
+    Occluder,
 }
 
 impl Task {
@@ -29,6 +31,7 @@ impl Task {
             Task::Abca => "abca",
             Task::Tour => "tour",
             Task::Wander => "wander",
+            Task::Occluder => "occluder",
         }
     }
 
@@ -39,6 +42,7 @@ impl Task {
             Task::Abca => 2,
             Task::Tour => rng.range(3, 6) as usize,
             Task::Wander => rng.range(3, 7) as usize,
+            Task::Occluder => 0,
         }
     }
 }
@@ -160,6 +164,51 @@ pub fn generate(world: &World, spec: &TrajectorySpec, max_steps: usize) -> Resul
     Ok(Trajectory { spec: *spec, steps: rec.steps, returning_point, waypoints })
 }
 
+/// The occluder scene: a wall of stone bricks `range` blocks long, two
+/// blocks to the side of A, parallel to A's view (yaw 0, +z). The agent first
+/// looks down A's side, then walks around the wall's near end and along the
+/// far side looking the same way, comes back to A and looks down A's side
+/// again; the way back (the evaluated leg) then walks down A's side. Seen from
+/// that leg, the far side's frames stand a few blocks away and look the same
+/// way, so their frusta share much of each target's volume, but the wall hid
+/// A's side from them; A's own frames saw it from further back.
+/// Builds the wall into `world`.
+pub fn generate_occluder(world: &mut World, spec: &TrajectorySpec, max_steps: usize) -> Result<Trajectory, TrajectoryError> {
+    let mut rng = Rng::new(hash(spec.seed, &[spec.task as i64, spec.range as i64]));
+    let len = spec.range.max(4);
+    // Only on nearly flat ground does a wall at A's height stand on it without gaps.
+    let flat = |a: [i32; 3]| (a[2] - 2..=a[2] + len + 2).all(|z| (a[0] - 1..=a[0] + 5).all(|x| world.top(x, z).is_some_and(|y| (y + 1 - a[1]).abs() <= 1)));
+    let a = (0..40).find_map(|_| pick_start(world, &mut rng).filter(|&a| flat(a))).ok_or(TrajectoryError::NoStart)?;
+    for z in a[2] - 1..=a[2] + len + 1 {
+        for y in a[1] - 2..=a[1] + 3 {
+            world.set(a[0] + 2, y, z, crate::blocks::Block::StoneBricks);
+        }
+    }
+    let world = &*world;
+    let cell = |x: i32, z: i32| -> Result<[i32; 3], TrajectoryError> {
+        let y = world.top(x, z).ok_or(TrajectoryError::NoStart)? + 1;
+        if standable(world, x, y, z) { Ok([x, y, z]) } else { Err(TrajectoryError::NoGoal { leg: 0, tries: 1 }) }
+    };
+    let (far_near, far_end, a_end) = (cell(a[0] + 4, a[2])?, cell(a[0] + 4, a[2] + len)?, cell(a[0], a[2] + len)?);
+    let mut rec = Recorder { world, steps: Vec::new(), max_steps };
+    let mut state = PlayerState::at_cell(a, LOOK_AROUND_YAWS[0]);
+    rec.steps.push(Step { action: Action::default(), state, phase: Phase::LookAround });
+    state = rec.turn_to(state, 0.0, 0.0, Phase::LookAround)?;
+    let legs = [(far_near, true), (far_end, false), (a, true)];
+    for (leg, (goal, turn_after)) in legs.into_iter().enumerate() {
+        let from = state.cell();
+        let path = find_path(world, from, goal, MAX_EXPANSIONS).ok_or(TrajectoryError::NoGoal { leg, tries: 1 })?;
+        state = rec.follow(state, path, Phase::Outbound, leg, spec.task, &mut rng)?;
+        if turn_after {
+            state = rec.turn_to(state, 0.0, 0.0, Phase::Outbound)?;
+        }
+    }
+    let returning_point = rec.steps.len();
+    let path = find_path(world, state.cell(), a_end, MAX_EXPANSIONS).ok_or(TrajectoryError::NoGoal { leg: 3, tries: 1 })?;
+    rec.follow(state, path, Phase::Return, 3, spec.task, &mut rng)?;
+    Ok(Trajectory { spec: *spec, steps: rec.steps, returning_point, waypoints: vec![a, far_near, far_end, a_end] })
+}
+
 fn horizontal_distance(p: [i32; 3], q: [i32; 3]) -> f64 {
     (((p[0] - q[0]).pow(2) + (p[2] - q[2]).pow(2)) as f64).sqrt()
 }
@@ -257,6 +306,28 @@ impl Recorder<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_occluder_scene_puts_a_wall_between_the_way_back_and_the_far_side() {
+        let spec = TrajectorySpec { task: Task::Occluder, range: 8, world_seed: 0, seed: 5 };
+        let (world, t) = (0..20u64)
+            .find_map(|seed| {
+                let mut world = World::generate(seed);
+                let t = generate_occluder(&mut world, &TrajectorySpec { world_seed: seed, ..spec }, 1200).ok()?;
+                Some((world, t))
+            })
+            .expect("some world holds the scene");
+        let a = t.waypoints[0];
+        let wall_x = a[0] + 2;
+        for z in a[2]..=a[2] + 8 {
+            assert_eq!(world.get(wall_x, a[1] + 1, z), crate::blocks::Block::StoneBricks, "the wall at eye height, z {z}");
+        }
+        let x = |s: &Step| s.state.feet[0];
+        assert!(t.steps[t.returning_point..].iter().all(|s| x(s) < wall_x as f64), "the way back stays on A's side");
+        assert!(t.steps[..t.returning_point].iter().any(|s| x(s) > wall_x as f64 + 1.0), "the exploration went round to the far side");
+        let last = t.steps.last().unwrap().state;
+        assert!((last.feet[2] - (a[2] + 8) as f64).abs() < 1.0, "the way back ends at the wall's far end");
+    }
 
     #[test]
     fn aba_returns_to_a_and_revisits_its_start() {
