@@ -13,9 +13,16 @@ echo "==> installing Python test requirements"
 .venv/bin/python -m pip install --disable-pip-version-check -q -r tests/requirements.txt
 .venv/bin/python -m pip install --disable-pip-version-check -q -e 'clients/python[gym]'
 
+if ! command -v chromium >/dev/null; then
+  # The viewer test drives the page in Debian's Chromium (tests/test_viewer.py).
+  echo "==> installing Debian's chromium for the viewer test"
+  sudo=""; [ "$(id -u)" = 0 ] || sudo="sudo"
+  $sudo apt-get install -y -q chromium >/dev/null || { $sudo apt-get update -q && $sudo apt-get install -y -q chromium >/dev/null; }
+fi
+
 echo "==> cargo test (release: the overlap property tests sample millions of points)"
 cargo test --release --workspace
 
-echo "==> pytest (OpenCV convention tests)"
+echo "==> pytest (OpenCV convention tests, ONNX parity, the Python client, the viewer in Chromium)"
 cargo build --release --bin worldpack
 WORLDPACK_BIN="$PWD/target/release/worldpack" .venv/bin/python -m pytest tests -q

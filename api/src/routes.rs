@@ -32,12 +32,17 @@ use world::picture::encode_png;
 use crate::store::{FrameRecord, SessionRecord};
 use crate::{AppState, Slot};
 
+/// The web viewer (docs/viewer.md): one page, embedded, that drives the public API.
+const VIEWER: &str = include_str!("viewer.html");
+
 type Res<T> = Result<T, ApiError>;
 type St = State<Arc<AppState>>;
 
 pub fn router(state: Arc<AppState>) -> Router {
     Router::new()
         .merge(utoipa_swagger_ui::SwaggerUi::new("/docs").external_url_unchecked("/openapi.json", openapi::document()))
+        .route("/", get(|| async { axum::response::Redirect::to("/viewer") }))
+        .route("/viewer", get(|| async { axum::response::Html(VIEWER) }))
         .route("/v1/health", get(health))
         .route("/metrics", get(metrics))
         .route("/v1/sessions", post(create))
