@@ -72,6 +72,10 @@ enum Command {
         /// lands, and the model fills only the holes (the composite; docs/geometry.md).
         #[arg(long)]
         overlay_warp: bool,
+        /// Choose each step's plan and a geometry model's warp sources by co-visibility from the
+        /// observed frames' depth instead of frustum overlap (docs/geometry.md).
+        #[arg(long)]
+        covisible: bool,
     },
     /// Benchmarks (tables on stdout; --json for machines).
     Bench {
@@ -342,7 +346,7 @@ fn main() -> ExitCode {
                 report(sim::render_one(&out, seed, pose, biome, size, probe), "sim render")
             }
         },
-        Command::Serve { model, memory_only, store, addr, provider, threads, steps, method, policy, max_queue, max_inflight, overlay_warp } => {
+        Command::Serve { model, memory_only, store, addr, provider, threads, steps, method, policy, max_queue, max_inflight, overlay_warp, covisible } => {
             let config = api::Config {
                 addr,
                 store,
@@ -354,6 +358,7 @@ fn main() -> ExitCode {
                 max_queue_per_session: max_queue as usize,
                 max_inflight: max_inflight as usize,
                 overlay_warp,
+                covisible,
                 ..api::Config::default()
             };
             report(serve(config), "serve")

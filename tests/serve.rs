@@ -469,3 +469,29 @@ fn the_paper_token_geometry_serves_a_synthetic_session() {
         }
     }
 }
+
+/// `serve --covisible`: each step's plan and warp sources come from
+/// co-visibility over the observed frames' depth.
+#[test]
+fn covisible_serving_chooses_warp_sources_among_the_observed_frames() {
+    let store = temp_store("covisible");
+    let model = concat!(env!("CARGO_MANIFEST_DIR"), "/fixtures/variants/worldpack_geometry");
+    let s = Server::start(&store, &["--model", model, "--covisible"]);
+    let (code, created) = s.post("/v1/sessions", &json!({ "synthetic": { "seed": 3 } }));
+    assert_eq!(code, 201, "{created}");
+    let id = created["session"].as_u64().unwrap();
+    let step = |body: Value| s.post(&format!("/v1/sessions/{id}/step"), &body);
+    for _ in 0..3 {
+        let (code, r) = step(json!({ "action": { "forward": true }, "observe": true }));
+        assert_eq!((code, r["source"].as_str()), (200, Some("observed")), "{r}");
+    }
+    for i in 4..=6u64 {
+        let (code, r) = step(json!({ "action": { "forward": true } }));
+        assert_eq!((code, r["index"].as_u64()), (200, Some(i)), "{r}");
+        let sources: Vec<u64> = r["selection"]["warp_frames"].as_array().unwrap().iter().map(|f| f.as_u64().unwrap()).collect();
+        assert!(!sources.is_empty() && sources.iter().all(|&f| f <= 3), "observed frames 0-3 have depth: {r}");
+        assert_eq!(r["selection"]["exact_evaluations"], 0, "co-visibility reports no frustum evaluations: {r}");
+        let used = r["selection"]["plan"]["slots"].as_array().unwrap().iter().filter(|s| s["frame"].is_u64()).count() as u64;
+        assert_eq!(used, i, "every earlier frame fits: {r}");
+    }
+}

@@ -26,6 +26,8 @@ pub struct Engine {
     pub model: Option<Model>,
     /// Show a geometry model's warp wherever it lands (`Config::overlay_warp`).
     pub overlay_warp: bool,
+    /// Choose each step's plan and warp sources by co-visibility (`Config::covisible`).
+    pub covisible: bool,
     worlds: Mutex<HashMap<u64, Arc<World>>>,
 }
 
@@ -57,7 +59,7 @@ pub struct TruthScore {
 
 impl Engine {
     pub fn new(store: Store, model: Option<Model>) -> Engine {
-        Engine { store, model, overlay_warp: false, worlds: Mutex::new(HashMap::new()) }
+        Engine { store, model, overlay_warp: false, covisible: false, worlds: Mutex::new(HashMap::new()) }
     }
 
     /// The synthetic world of `seed`, generated once and shared.
@@ -170,11 +172,16 @@ impl Engine {
         };
         let time = s.next_time();
         let frustum = s.frustum(pose)?;
-        let (plan, stats) = s.memory.select(&s.policy, &frustum, s.last_plan.as_ref());
+        let (plan, exact_evaluations) = if self.covisible {
+            (s.covisible_plan(&frustum)?, 0)
+        } else {
+            let (plan, stats) = s.memory.select(&s.policy, &frustum, s.last_plan.as_ref());
+            (plan, stats.overlap_evaluations)
+        };
         let select_ms = ms(t0);
         let action_values = action.to_vector().map(|v| v as f32);
         let (warp_frames, warp) = match &m.manifest().denoiser.warp {
-            Some(spec) => s.warp_sources(&frustum, spec.frames),
+            Some(spec) => s.warp_sources(&frustum, spec.frames, self.covisible)?,
             None => (Vec::new(), Vec::new()),
         };
         let request = model::Request {
@@ -219,7 +226,7 @@ impl Engine {
             png: record.png,
             plan,
             layout: prediction.layout,
-            exact_evaluations: stats.overlap_evaluations,
+            exact_evaluations,
             timings_ms: [select_ms, prediction.warp_ms, prediction.sample_ms, decode_ms, store_ms],
             warp_frames,
             truth,

@@ -48,6 +48,9 @@ pub struct Config {
     /// Geometry models: each generated frame shows the warp of its sources
     /// wherever it lands (the model fills only the holes), and is re-encoded.
     pub overlay_warp: bool,
+    /// Each step's plan and a geometry model's warp sources are chosen by
+    /// co-visibility from the observed frames' depth (memory::covisibility).
+    pub covisible: bool,
 }
 
 impl Default for Config {
@@ -65,6 +68,7 @@ impl Default for Config {
             max_inflight: 64,
             request_timeout: Duration::from_secs(120),
             overlay_warp: false,
+            covisible: false,
         }
     }
 }
@@ -113,6 +117,7 @@ impl Server {
         }
         let mut engine = Engine::new(store, model);
         engine.overlay_warp = config.overlay_warp;
+        engine.covisible = config.covisible;
         let state = Arc::new(AppState {
             inflight: Semaphore::new(config.max_inflight),
             engine,

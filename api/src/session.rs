@@ -4,7 +4,7 @@
 use std::collections::HashMap;
 use std::sync::Arc;
 
-use memory::covisibility::DepthGrid;
+use memory::covisibility::{self, CoVisibility, DepthGrid};
 use memory::{ContextPlan, FrameMemory, Frustum, Intrinsics, MemoryFrame, Policy, PolicySpec, Pose};
 use model::WarpSource;
 use model::warp::DEPTH_UNIT_M;
@@ -44,6 +44,8 @@ pub struct Session {
     /// the one of them that overlaps the target view most.
     pub depth_memory: FrameMemory,
     pub depth_frames: HashMap<u64, DepthFrame>,
+    /// Their depth pooled at the default co-visibility grid (memory::covisibility).
+    pub depth_grids: HashMap<u64, DepthGrid>,
 }
 
 /// A stored frame's `source` when a step made it (else `observed`).
@@ -54,6 +56,12 @@ pub fn policy_of(spec: &serde_json::Value) -> Result<Policy, ApiError> {
     let spec: PolicySpec = serde_path_to_error::deserialize(spec.clone())
         .map_err(|e| ApiError::bad(format!("policy.{}", e.path()).trim_end_matches(".").to_string(), e.inner().to_string()))?;
     Ok(spec.into_policy().map_err(|e| e.within("policy"))?)
+}
+
+/// Depth in millimetres (0: none) pooled to a coarse grid in metres (memory::covisibility).
+fn pool_depth(depth_mm: &[u16], k: &Intrinsics, cells: u32) -> Result<DepthGrid, ApiError> {
+    let metres: Vec<f32> = depth_mm.iter().map(|&mm| (mm as f64 * DEPTH_UNIT_M) as f32).collect();
+    DepthGrid::pool(&metres, k, cells).map_err(|e| ApiError::bad("covisibility.cells", e.to_string()))
 }
 
 pub fn pose_of(meta: &FrameMeta) -> Result<Pose, ApiError> {
@@ -75,6 +83,7 @@ impl Session {
             deleted: false,
             depth_memory: FrameMemory::new(),
             depth_frames: HashMap::new(),
+            depth_grids: HashMap::new(),
         };
         for (index, f) in frames.into_iter().enumerate() {
             let generated = f.meta.source == GENERATED;
@@ -115,6 +124,7 @@ impl Session {
         let f = self.frames.get(index as usize).ok_or_else(|| ApiError::internal(format!("depth for frame {index}, which is not indexed")))?;
         let frustum = self.frustum(f.pose)?;
         self.depth_memory.insert(MemoryFrame { id: index, time: f.time, frustum })?;
+        self.depth_grids.insert(index, pool_depth(&depth_mm, &k, CoVisibility::default().cells)?);
         self.depth_frames.insert(index, DepthFrame { rgb, depth_mm });
         Ok(())
     }
@@ -122,28 +132,38 @@ impl Session {
     /// Every observed frame's depth pooled to `cells` columns (metres;
     /// memory::covisibility), by frame index.
     pub fn depth_grids(&self, cells: u32) -> Result<HashMap<u64, DepthGrid>, ApiError> {
+        if cells == CoVisibility::default().cells {
+            return Ok(self.depth_grids.clone());
+        }
         let k = self.intrinsics();
-        self.depth_frames
-            .iter()
-            .map(|(&id, d)| {
-                let metres: Vec<f32> = d.depth_mm.iter().map(|&mm| (mm as f64 * DEPTH_UNIT_M) as f32).collect();
-                let grid = DepthGrid::pool(&metres, k, cells).map_err(|e| ApiError::bad("covisibility.cells", e.to_string()))?;
-                Ok((id, grid))
-            })
-            .collect()
+        self.depth_frames.iter().map(|(&id, d)| Ok((id, pool_depth(&d.depth_mm, k, cells)?))).collect()
     }
 
-    /// The `count` observed frames with depth that overlap `target` most,
-    /// best first, ready to warp, with their indices (none when no frame with
+    /// The session policy's plan for `target` by co-visibility (default settings).
+    pub fn covisible_plan(&self, target: &Frustum) -> Result<ContextPlan, ApiError> {
+        let settings = CoVisibility::default();
+        let (plan, _) = covisibility::select(&self.memory, &self.policy, target, &settings, self.last_plan.as_ref(), |id| self.depth_grids.get(&id))?;
+        Ok(plan)
+    }
+
+    /// The `count` observed frames with depth that overlap `target` most (or,
+    /// `covisible`, that saw most of its expected surface unoccluded), best
+    /// first, ready to warp, with their indices (none when no frame with
     /// depth sees it).
-    pub fn warp_sources(&self, target: &Frustum, count: usize) -> (Vec<u64>, Vec<WarpSource<'_>>) {
-        let (plan, _) = self.depth_memory.select(&Policy::best_overlap_frames(count), target, None);
-        plan.selected()
+    pub fn warp_sources(&self, target: &Frustum, count: usize, covisible: bool) -> Result<(Vec<u64>, Vec<WarpSource<'_>>), ApiError> {
+        let best = Policy::best_overlap_frames(count);
+        let plan = if covisible {
+            covisibility::select(&self.depth_memory, &best, target, &CoVisibility::default(), None, |id| self.depth_grids.get(&id))?.0
+        } else {
+            self.depth_memory.select(&best, target, None).0
+        };
+        Ok(plan
+            .selected()
             .filter_map(|(_, f)| {
                 let d = self.depth_frames.get(&f.id)?;
                 Some((f.id, WarpSource { rgb: &d.rgb, depth_mm: &d.depth_mm, pose: &self.frames[f.id as usize].pose, intrinsics: self.intrinsics() }))
             })
-            .unzip()
+            .unzip())
     }
 
     pub fn next_time(&self) -> u64 {
