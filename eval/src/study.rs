@@ -954,7 +954,7 @@ mod tests {
             explored: 0.0,
         };
         let strata = vec![vec![feature(10, 0.0), feature(20, 0.5)], vec![feature(10, 0.0), feature(20, 0.0)]];
-        let s = summarise(&results, &strata, &[], Vec::new());
+        let s = summarise(&results, &strata, &[], Vec::new(), &[]);
 
         // Only the timed (clean) condition's rows are speed/accuracy points.
         assert_eq!(s.tradeoff.len(), 4);
