@@ -18,6 +18,21 @@ use eval::stats::percentile;
 
 /// Every slot present, random latents and poses: a full context of `layout`, batch 1.
 fn full_context(m: &Manifest, layout: &LayoutSpec) -> Context3 {
+    batched_context(m, layout, 1)
+}
+
+/// [`full_context`] repeated `batch` times along the batch axis.
+fn batched_context(m: &Manifest, layout: &LayoutSpec, batch: usize) -> Context3 {
+    let repeat = |t: Tensor| {
+        let mut shape = t.shape.clone();
+        shape[0] *= batch;
+        Tensor::new(shape, t.data.repeat(batch))
+    };
+    let (context, action, rel_time) = one_context(m, layout);
+    (context.into_iter().map(|(k, t)| (k, repeat(t))).collect(), repeat(action), repeat(rel_time))
+}
+
+fn one_context(m: &Manifest, layout: &LayoutSpec) -> Context3 {
     let l = &m.autoencoder.latent;
     let mut seed = 0;
     let mut next = |n: usize| {
@@ -39,11 +54,12 @@ fn full_context(m: &Manifest, layout: &LayoutSpec) -> Context3 {
 /// Context tensors, action, relative time.
 type Context3 = (Vec<(String, Tensor)>, Tensor, Tensor);
 
-/// One denoiser call at batch 1.
+/// One denoiser call at the context's batch.
 fn call(graph: &Graph, m: &Manifest, ctx: &Context3) -> Result<()> {
     let l = &m.autoencoder.latent;
-    let x = Tensor::new(vec![1, l.channels, l.height, l.width], gaussian(99, l.len()));
-    let t = Tensor::new(vec![1], vec![500.0]);
+    let batch = ctx.2.shape[0];
+    let x = Tensor::new(vec![batch, l.channels, l.height, l.width], gaussian(99, batch * l.len()));
+    let t = Tensor::new(vec![batch], vec![500.0; batch]);
     let mut inputs: Vec<(&str, &Tensor)> = ctx.0.iter().map(|(k, v)| (k.as_str(), v)).collect();
     inputs.extend([("x_t", &x), ("timestep", &t), ("action", &ctx.1), ("rel_time", &ctx.2)]);
     graph.run(&inputs)?;
@@ -107,6 +123,15 @@ struct Report {
     /// None when a high-water-mark reset failed (the peak may then be the load's).
     call_memory_ratio: Option<f64>,
     next_frame: Vec<StepRow>,
+    /// Per-item cost of one denoiser call at each batch size (median over the calls).
+    batching: Vec<BatchRow>,
+}
+
+#[derive(Serialize)]
+struct BatchRow {
+    batch: usize,
+    baseline_ms_per_item: f64,
+    worldpack_ms_per_item: f64,
 }
 
 #[derive(Serialize)]
@@ -130,7 +155,7 @@ struct StepRow {
     worldpack_ms: f64,
 }
 
-pub fn run(dir: &Path, options: RuntimeOptions, steps: &[usize], calls: usize, json: bool) -> Result<()> {
+pub fn run(dir: &Path, options: RuntimeOptions, steps: &[usize], calls: usize, batches: &[usize], json: bool) -> Result<()> {
     let m = Model::load(dir, options)?;
     let (Some(base), Some(packed)) = (m.manifest().layout("baseline").cloned(), m.manifest().layout("worldpack").cloned()) else {
         bail!("--model: {} needs both a \"baseline\" and a \"worldpack\" layout to compare", dir.display());
@@ -184,6 +209,24 @@ pub fn run(dir: &Path, options: RuntimeOptions, steps: &[usize], calls: usize, j
         next_frame.push(StepRow { steps: n, baseline_ms: time_one("baseline", &cb)?, worldpack_ms: time_one("worldpack", &cp)? });
     }
 
+    // Per item at each batch size, the layouts interleaved as above.
+    let mut batching = Vec::new();
+    for &b in batches {
+        let (cb, cp) = (batched_context(m.manifest(), &base, b), batched_context(m.manifest(), &packed, b));
+        call(gb, m.manifest(), &cb)?;
+        call(gp, m.manifest(), &cp)?;
+        let (mut tb, mut tp) = (Vec::new(), Vec::new());
+        for _ in 0..calls.div_ceil(b).max(3) {
+            let s = Instant::now();
+            call(gb, m.manifest(), &cb)?;
+            tb.push(s.elapsed().as_secs_f64() * 1e3 / b as f64);
+            let s = Instant::now();
+            call(gp, m.manifest(), &cp)?;
+            tp.push(s.elapsed().as_secs_f64() * 1e3 / b as f64);
+        }
+        batching.push(BatchRow { batch: b, baseline_ms_per_item: stats(tb).0, worldpack_ms_per_item: stats(tp).0 });
+    }
+
     let mib = |k: u64| k as f64 / 1024.0;
     let row = |l: &LayoutSpec, median_ms, p95_ms, q: &Probe| LayoutRow {
         frames: l.frames,
@@ -206,6 +249,7 @@ pub fn run(dir: &Path, options: RuntimeOptions, steps: &[usize], calls: usize, j
         baseline: row(&base, mb, pb, &qb),
         worldpack: row(&packed, mp, pp, &qp),
         next_frame,
+        batching,
     };
     if json {
         println!("{}", serde_json::to_string_pretty(&report)?);
@@ -236,6 +280,13 @@ fn print(r: &Report) {
     );
     if r.call_memory_ratio.is_none() {
         println!("per-call memory n/a: the high-water mark could not be reset after loading (/proc/self/clear_refs), so a peak may be the load's");
+    }
+    if !r.batching.is_empty() {
+        println!("\none denoiser call per item, by batch size (median):");
+        println!("{:>6} {:>20} {:>21}", "batch", "baseline (ms/item)", "worldpack (ms/item)");
+        for b in &r.batching {
+            println!("{:>6} {:>20.3} {:>21.3}", b.batch, b.baseline_ms_per_item, b.worldpack_ms_per_item);
+        }
     }
     println!("\nnext frame (sampler + decode), median of 3:");
     println!("{:>6} {:>14} {:>15}", "steps", "baseline (ms)", "worldpack (ms)");

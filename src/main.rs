@@ -233,6 +233,9 @@ enum BenchCommand {
         /// Timed denoiser calls per layout.
         #[arg(long, default_value_t = 50, value_parser = clap::value_parser!(u64).range(1..=100_000))]
         calls: u64,
+        /// Comma-separated batch sizes at which to time one denoiser call (per-item cost; what batching across sessions could save).
+        #[arg(long, value_delimiter = ',', default_value = "1,4,16", value_parser = clap::value_parser!(u64).range(1..=1024))]
+        batches: Vec<u64>,
         #[arg(long)]
         json: bool,
     },
@@ -312,12 +315,13 @@ fn main() -> ExitCode {
             }
             ExitCode::SUCCESS
         }
-        Command::Bench { what: BenchCommand::Step { model, provider, threads, steps, calls, json } } => {
+        Command::Bench { what: BenchCommand::Step { model, provider, threads, steps, calls, batches, json } } => {
             if let Some(bad) = steps.iter().find(|&&n| n == 0 || n > 1000) {
                 eprintln!("worldpack bench step: --steps must lie in 1..=1000, got {bad}");
                 return ExitCode::from(2);
             }
-            report(bench_step::run(&model, model::RuntimeOptions { provider, threads }, &steps, calls as usize, json), "bench step")
+            let batches: Vec<usize> = batches.iter().map(|&b| b as usize).collect();
+            report(bench_step::run(&model, model::RuntimeOptions { provider, threads }, &steps, calls as usize, &batches, json), "bench step")
         }
         Command::Bench { what: BenchCommand::Serve { model, steps, calls, sessions, per_session, provider, threads, json } } => {
             if let Some(bad) = sessions.iter().find(|&&n| n == 0 || n > 256) {

@@ -126,7 +126,7 @@ fn geometry_rejects_duplicate_frame_ids_by_field() {
 #[test]
 fn bench_step_compares_the_two_contexts() {
     let fixture = concat!(env!("CARGO_MANIFEST_DIR"), "/fixtures/small");
-    let (code, stdout, stderr) = worldpack(&["bench", "step", "--model", fixture, "--calls", "2", "--steps", "1,2", "--json"], "");
+    let (code, stdout, stderr) = worldpack(&["bench", "step", "--model", fixture, "--calls", "2", "--steps", "1,2", "--batches", "1,3", "--json"], "");
     assert_eq!(code, 0, "{stderr}");
     let r: serde_json::Value = serde_json::from_str(&stdout).unwrap();
     assert_eq!(r["provider"], "cpu");
@@ -144,6 +144,9 @@ fn bench_step_compares_the_two_contexts() {
     assert_eq!(r["call_memory_ratio"].is_null(), !(r["baseline"]["hwm_reset"] == true && r["worldpack"]["hwm_reset"] == true));
     let rows = r["next_frame"].as_array().unwrap();
     assert_eq!(rows.iter().map(|s| s["steps"].as_u64().unwrap()).collect::<Vec<_>>(), [1, 2]);
+    let batching = r["batching"].as_array().unwrap();
+    assert_eq!(batching.iter().map(|b| b["batch"].as_u64().unwrap()).collect::<Vec<_>>(), [1, 3]);
+    assert!(batching.iter().all(|b| b["baseline_ms_per_item"].as_f64().unwrap() > 0.0 && b["worldpack_ms_per_item"].as_f64().unwrap() > 0.0));
 }
 
 #[test]
