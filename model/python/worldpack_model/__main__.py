@@ -24,12 +24,14 @@ def main() -> None:
                        help="context noise level that marks a generated frame (in training and, via the manifest, at inference)")
         g.add_argument("--pose-noise-translation", type=float, default=0.0, help="sd of context pose noise, blocks")
         g.add_argument("--pose-noise-degrees", type=float, default=0.0, help="sd of context rotation noise, degrees")
+        g.add_argument("--pose-noise-share", type=float, default=1.0,
+                       help="share of each batch's items whose context and warp-source poses get that noise")
 
     def recipe_of(a):
         from .recipe import Recipe
 
         return Recipe(a.context_noise, a.context_noise_share, a.rollout_share, a.rollout_steps, a.generated_level,
-                      a.pose_noise_translation, a.pose_noise_degrees)
+                      a.pose_noise_translation, a.pose_noise_degrees, a.pose_noise_share)
 
     def common(p, data=True):
         if data:

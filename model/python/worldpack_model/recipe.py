@@ -40,6 +40,8 @@ class Recipe:
     # Pose noise on context frames: translation sd (blocks) and rotation sd (degrees); 0: off.
     pose_noise_translation: float = 0.0
     pose_noise_degrees: float = 0.0
+    # Share of each batch's items whose context (and warp-source) poses get that noise.
+    pose_noise_share: float = 1.0
 
     def needs_noise_input(self) -> bool:
         return self.context_noise > 0 or self.generated_level > 0
@@ -48,7 +50,7 @@ class Recipe:
         return asdict(self)
 
     def check(self) -> None:
-        for name in ("context_noise_share", "rollout_share"):
+        for name in ("context_noise_share", "rollout_share", "pose_noise_share"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise SystemExit(f"--{name.replace('_', '-')}: must be in [0, 1], got {getattr(self, name)}")
         for name in ("context_noise", "generated_level", "pose_noise_translation", "pose_noise_degrees"):
@@ -123,6 +125,12 @@ class ContextAugmenter:
         r = self.recipe
         if r.rollout_share > 0:
             self.replace_newest(batch, groups, rollout_model)
+        # Which items get pose noise (all of them at share 1, without a draw, as before the share existed).
+        self.pose_noisy_items = None
+        if r.pose_noise_translation > 0 or r.pose_noise_degrees > 0:
+            b = x0.shape[0]
+            self.pose_noisy_items = (torch.ones(b, device=self.device) if r.pose_noise_share >= 1.0
+                                     else (torch.rand(b, generator=self.gen, device=self.device) < r.pose_noise_share).float())
         for g in groups:
             lat, offsets, poses, mask = g[:4]
             if r.context_noise > 0:
@@ -134,7 +142,7 @@ class ContextAugmenter:
                 g[0] = lat + level[..., None, None, None] * torch.randn(lat.shape, generator=self.gen, device=self.device)
                 g[4] = g[4] + level
             if r.pose_noise_translation > 0 or r.pose_noise_degrees > 0:
-                g[2] = perturb_poses(poses, mask, r.pose_noise_translation, r.pose_noise_degrees, self.gen)
+                g[2] = perturb_poses(poses, mask * self.pose_noisy_items[:, None], r.pose_noise_translation, r.pose_noise_degrees, self.gen)
         return x0, action, rel_time, [tuple(g) for g in groups]
 
     def replace_newest(self, batch: wdata.Batch, groups, model) -> None:

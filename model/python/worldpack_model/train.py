@@ -209,7 +209,8 @@ def train_cdit(data: Path, run: Path, policy: str, steps: int, batch: int, lr: f
         if state.get("memory_focus", 0.0) != memory_focus:
             raise SystemExit(f"--memory-focus: {ckpt} was trained with {state.get('memory_focus', 0.0)}, not {memory_focus}; "
                              "resume with the same value or use another --run")
-        saved = state.get("recipe", Recipe().to_json())
+        # Options added later read as their defaults in older checkpoints.
+        saved = {**Recipe().to_json(), **state.get("recipe", {})}
         if saved != recipe.to_json() and "opt" in state:
             raise SystemExit(f"the recipe differs from the one {ckpt} was trained with ({saved}); "
                              "resume with the same options or use another --run")
@@ -235,7 +236,7 @@ def train_cdit(data: Path, run: Path, policy: str, steps: int, batch: int, lr: f
     while step < steps and time.time() < deadline:
         drawn = source.batch(rng, batch)
         x0, action, rel_time, groups = augment(drawn, ema)
-        warp_in = batch_warp(source, drawn, autoencoder, dev, pose_noise) if autoencoder is not None else None
+        warp_in = batch_warp(source, drawn, autoencoder, dev, pose_noise, augment.pose_noisy_items) if autoencoder is not None else None
         t = torch.randint(0, cfg.diffusion.timesteps, (batch,), device=dev)
         noise = torch.randn_like(x0)
         ab = alpha_bar[t].view(-1, 1, 1, 1)

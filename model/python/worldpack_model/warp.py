@@ -86,19 +86,20 @@ def warp_input(encoder, scale: float, warped: torch.Tensor, mask: torch.Tensor, 
 
 
 @torch.no_grad()
-def batch_warp(source, batch, autoencoder, device: torch.device, pose_noise=None) -> torch.Tensor:
+def batch_warp(source, batch, autoencoder, device: torch.device, pose_noise=None, noisy_items=None) -> torch.Tensor:
     """The `warp` input for a training batch of `data.PlannedLatents` (rows
     without a source frame get an empty warp: zero image, zero coverage).
     `pose_noise` (translation sd in blocks, rotation sd in degrees, a torch
     generator): the source frames' poses are perturbed as the recipe perturbs
     context poses, so the model learns how far to trust a warp made from a
-    wrong pose."""
+    wrong pose. `noisy_items` (B,): which items get it (default: all)."""
     rgb, depth, src_pose, dst_pose, present = source.warp_pixels(batch)
     t = lambda a: torch.from_numpy(a).to(device)
     src = t(src_pose)
     if pose_noise is not None:
         b, k = src.shape[:2]
-        rows = perturb_poses(src[..., :3, :].reshape(b, k, 12).float(), t(present).float(), *pose_noise).double()
+        which = t(present).float() * (noisy_items[:, None] if noisy_items is not None else 1.0)
+        rows = perturb_poses(src[..., :3, :].reshape(b, k, 12).float(), which, *pose_noise).double()
         src = src.clone()
         src[..., :3, :] = rows.view(b, k, 3, 4)
     warped, mask = forward_warp(t(rgb), t(depth), source.intrinsics, src, t(dst_pose), t(present))
