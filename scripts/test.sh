@@ -17,7 +17,9 @@ if ! command -v chromium >/dev/null; then
   # The viewer test drives the page in Debian's Chromium (tests/test_viewer.py).
   echo "==> installing Debian's chromium for the viewer test"
   sudo=""; [ "$(id -u)" = 0 ] || sudo="sudo"
-  $sudo apt-get install -y -q chromium >/dev/null || { $sudo apt-get update -q && $sudo apt-get install -y -q chromium >/dev/null; }
+  if ! { $sudo apt-get install -y -q chromium >/dev/null 2>&1 || { $sudo apt-get update -q >/dev/null && $sudo apt-get install -y -q chromium >/dev/null; }; }; then
+    echo "could not install chromium (apt-get as root or through sudo): tests/test_viewer.py will fail and say so"
+  fi
 fi
 
 echo "==> cargo test (release: the overlap property tests sample millions of points)"
