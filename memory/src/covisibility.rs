@@ -185,6 +185,7 @@ pub struct CoVisibilityStats {
 /// the score weights; `depth_of` the coarse depth of a stored frame, if any.
 /// Without any candidate depth this is `policy`'s own frustum-score ranking.
 /// `previous` (the last plan for a nearby target) only speeds the first stage up.
+/// The policy's `keep_last` pin is not applied: every slot is ranked by score.
 pub fn select<'a>(
     memory: &FrameMemory,
     policy: &Policy,
