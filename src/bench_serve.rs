@@ -31,6 +31,8 @@ struct Report {
 
 #[derive(Serialize)]
 struct ConcurrencyRow {
+    /// The batching window in ms (0: each step calls the model alone).
+    batch_window_ms: u64,
     sessions: usize,
     steps: usize,
     throughput_steps_per_s: f64,
@@ -57,7 +59,16 @@ fn temp_store(name: &str) -> PathBuf {
     dir.join("store.redb")
 }
 
-pub fn run(model_dir: &Path, runtime: RuntimeOptions, steps: usize, calls: usize, sessions: &[usize], per_session: usize, json_out: bool) -> Result<()> {
+pub fn run(
+    model_dir: &Path,
+    runtime: RuntimeOptions,
+    steps: usize,
+    calls: usize,
+    sessions: &[usize],
+    per_session: usize,
+    batch_window_ms: u64,
+    json_out: bool,
+) -> Result<()> {
     let policy = json!({ "kind": "worldpack" });
     // The library path: an engine with its own store, no HTTP.
     let lib_store = temp_store("library");
@@ -98,40 +109,25 @@ pub fn run(model_dir: &Path, runtime: RuntimeOptions, steps: usize, calls: usize
     lib_ms.sort_by(f64::total_cmp);
     http_ms.sort_by(f64::total_cmp);
 
-    let mut concurrency = Vec::new();
-    for &n in sessions {
-        let ids: Vec<u64> = (0..n)
-            .map(|k| post(&format!("{base}/v1/sessions"), &json!({ "synthetic": { "seed": k % 4 } })).map(|v| v["session"].as_u64().unwrap_or(0)))
-            .collect::<Result<_>>()?;
-        let started = Instant::now();
-        let results: Vec<Result<Vec<f64>>> = std::thread::scope(|s| {
-            let workers: Vec<_> = ids
-                .iter()
-                .map(|&sid| {
-                    let base = &base;
-                    s.spawn(move || {
-                        (0..per_session)
-                            .map(|i| {
-                                let t = Instant::now();
-                                post(&format!("{base}/v1/sessions/{sid}/step"), &json!({ "action": action(i) }))?;
-                                Ok(t.elapsed().as_secs_f64() * 1e3)
-                            })
-                            .collect::<Result<Vec<f64>>>()
-                    })
-                })
-                .collect();
-            workers.into_iter().map(|w| w.join().expect("bench client panicked")).collect()
-        });
-        let wall = started.elapsed().as_secs_f64();
-        let mut all: Vec<f64> = results.into_iter().collect::<Result<Vec<_>>>()?.into_iter().flatten().collect();
-        all.sort_by(f64::total_cmp);
-        concurrency.push(ConcurrencyRow {
-            sessions: n,
-            steps: all.len(),
-            throughput_steps_per_s: all.len() as f64 / wall,
-            p50_ms: percentile(&all, 0.5),
-            p99_ms: percentile(&all, 0.99),
-        });
+    let mut concurrency = concurrent_steps(&base, 0, sessions, per_session)?;
+    if batch_window_ms > 0 {
+        // The same rows against a second server that batches across sessions.
+        let batched_store = temp_store("batched");
+        let config = api::Config {
+            addr: "127.0.0.1:0".parse()?,
+            store: batched_store.clone(),
+            model: Some(model_dir.to_path_buf()),
+            runtime,
+            steps,
+            batch_window: Some(std::time::Duration::from_millis(batch_window_ms)),
+            batch_max: sessions.iter().copied().max().unwrap_or(1),
+            ..api::Config::default()
+        };
+        let server = rt.block_on(api::Server::bind(config)).map_err(anyhow::Error::msg)?;
+        let batched = format!("http://{}", server.local_addr());
+        rt.spawn(server.run());
+        concurrency.extend(concurrent_steps(&batched, batch_window_ms, sessions, per_session)?);
+        let _ = std::fs::remove_dir_all(batched_store.parent().unwrap());
     }
     let report = Report {
         model: model_dir.display().to_string(),
@@ -155,9 +151,50 @@ pub fn run(model_dir: &Path, runtime: RuntimeOptions, steps: usize, calls: usize
     println!("{:<34} {:>12.2} {:>10.2}", "library (engine.step + commit)", report.library_median_ms, report.library_p95_ms);
     println!("{:<34} {:>12.2} {:>10.2}", "HTTP (POST .../step)", report.http_median_ms, report.http_p95_ms);
     println!("\nHTTP / library: {:.3}x (target <= 1.05x)\n", report.http_over_library);
-    println!("{:>9} {:>7} {:>16} {:>10} {:>10}", "sessions", "steps", "steps/s", "p50 (ms)", "p99 (ms)");
+    println!("{:>10} {:>9} {:>7} {:>16} {:>10} {:>10}", "batching", "sessions", "steps", "steps/s", "p50 (ms)", "p99 (ms)");
     for r in &report.concurrency {
-        println!("{:>9} {:>7} {:>16.2} {:>10.1} {:>10.1}", r.sessions, r.steps, r.throughput_steps_per_s, r.p50_ms, r.p99_ms);
+        let batching = if r.batch_window_ms == 0 { "off".to_string() } else { format!("{} ms", r.batch_window_ms) };
+        println!("{:>10} {:>9} {:>7} {:>16.2} {:>10.1} {:>10.1}", batching, r.sessions, r.steps, r.throughput_steps_per_s, r.p50_ms, r.p99_ms);
     }
     Ok(())
+}
+
+/// Steps/s, p50 and p99 with `n` sessions stepping at once, for each `n`.
+fn concurrent_steps(base: &str, batch_window_ms: u64, sessions: &[usize], per_session: usize) -> Result<Vec<ConcurrencyRow>> {
+    let mut concurrency = Vec::new();
+    for &n in sessions {
+        let ids: Vec<u64> = (0..n)
+            .map(|k| post(&format!("{base}/v1/sessions"), &json!({ "synthetic": { "seed": k % 4 } })).map(|v| v["session"].as_u64().unwrap_or(0)))
+            .collect::<Result<_>>()?;
+        let started = Instant::now();
+        let results: Vec<Result<Vec<f64>>> = std::thread::scope(|s| {
+            let workers: Vec<_> = ids
+                .iter()
+                .map(|&sid| {
+                    s.spawn(move || {
+                        (0..per_session)
+                            .map(|i| {
+                                let t = Instant::now();
+                                post(&format!("{base}/v1/sessions/{sid}/step"), &json!({ "action": action(i) }))?;
+                                Ok(t.elapsed().as_secs_f64() * 1e3)
+                            })
+                            .collect::<Result<Vec<f64>>>()
+                    })
+                })
+                .collect();
+            workers.into_iter().map(|w| w.join().expect("bench client panicked")).collect()
+        });
+        let wall = started.elapsed().as_secs_f64();
+        let mut all: Vec<f64> = results.into_iter().collect::<Result<Vec<_>>>()?.into_iter().flatten().collect();
+        all.sort_by(f64::total_cmp);
+        concurrency.push(ConcurrencyRow {
+            batch_window_ms,
+            sessions: n,
+            steps: all.len(),
+            throughput_steps_per_s: all.len() as f64 / wall,
+            p50_ms: percentile(&all, 0.5),
+            p99_ms: percentile(&all, 0.99),
+        });
+    }
+    Ok(concurrency)
 }

@@ -76,6 +76,13 @@ enum Command {
         /// observed frames' depth instead of frustum overlap (docs/geometry.md).
         #[arg(long)]
         covisible: bool,
+        /// Batching across sessions: gather concurrent steps' model calls for up to this many
+        /// milliseconds into one call (0: off, each step calls alone).
+        #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u64).range(0..=1000))]
+        batch_window_ms: u64,
+        /// The most steps one batched call serves.
+        #[arg(long, default_value_t = 16, value_parser = clap::value_parser!(u64).range(1..=1024))]
+        batch_max: u64,
     },
     /// Benchmarks (tables on stdout; --json for machines).
     Bench {
@@ -260,6 +267,9 @@ enum BenchCommand {
         provider: model::Provider,
         #[arg(long, default_value_t = 1)]
         threads: usize,
+        /// Also run the concurrent rows against a server that batches across sessions with this window (ms; 0: only without).
+        #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u64).range(0..=1000))]
+        batch_window_ms: u64,
         #[arg(long)]
         json: bool,
     },
@@ -323,13 +333,13 @@ fn main() -> ExitCode {
             let batches: Vec<usize> = batches.iter().map(|&b| b as usize).collect();
             report(bench_step::run(&model, model::RuntimeOptions { provider, threads }, &steps, calls as usize, &batches, json), "bench step")
         }
-        Command::Bench { what: BenchCommand::Serve { model, steps, calls, sessions, per_session, provider, threads, json } } => {
+        Command::Bench { what: BenchCommand::Serve { model, steps, calls, sessions, per_session, provider, threads, batch_window_ms, json } } => {
             if let Some(bad) = sessions.iter().find(|&&n| n == 0 || n > 256) {
                 eprintln!("worldpack bench serve: --sessions must lie in 1..=256, got {bad}");
                 return ExitCode::from(2);
             }
             let runtime = model::RuntimeOptions { provider, threads };
-            report(bench_serve::run(&model, runtime, steps as usize, calls as usize, &sessions, per_session as usize, json), "bench serve")
+            report(bench_serve::run(&model, runtime, steps as usize, calls as usize, &sessions, per_session as usize, batch_window_ms, json), "bench serve")
         }
         Command::Bench { what: BenchCommand::Store { frames, json } } => report(bench_store::run(frames as usize, json), "bench store"),
         Command::Bench { what: BenchCommand::StepProbe { model, layout, provider, threads, calls } } => {
@@ -350,7 +360,7 @@ fn main() -> ExitCode {
                 report(sim::render_one(&out, seed, pose, biome, size, probe), "sim render")
             }
         },
-        Command::Serve { model, memory_only, store, addr, provider, threads, steps, method, policy, max_queue, max_inflight, overlay_warp, covisible } => {
+        Command::Serve { model, memory_only, store, addr, provider, threads, steps, method, policy, max_queue, max_inflight, overlay_warp, covisible, batch_window_ms, batch_max } => {
             let config = api::Config {
                 addr,
                 store,
@@ -363,6 +373,8 @@ fn main() -> ExitCode {
                 max_inflight: max_inflight as usize,
                 overlay_warp,
                 covisible,
+                batch_window: (batch_window_ms > 0).then(|| std::time::Duration::from_millis(batch_window_ms)),
+                batch_max: batch_max as usize,
                 ..api::Config::default()
             };
             report(serve(config), "serve")

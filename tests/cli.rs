@@ -165,13 +165,15 @@ fn bench_step_bad_input_names_the_flag() {
 #[test]
 fn bench_serve_compares_http_with_the_library_call() {
     let fixture = concat!(env!("CARGO_MANIFEST_DIR"), "/fixtures/small");
-    let args = ["bench", "serve", "--model", fixture, "--steps", "1", "--calls", "2", "--sessions", "1,3", "--per-session", "2", "--json"];
+    let args = ["bench", "serve", "--model", fixture, "--steps", "1", "--calls", "2", "--sessions", "1,3", "--per-session", "2", "--batch-window-ms", "5", "--json"];
     let (code, stdout, stderr) = worldpack(&args, "");
     assert_eq!(code, 0, "{stderr}");
     let r: serde_json::Value = serde_json::from_str(&stdout).unwrap();
     assert!(r["http_over_library"].as_f64().unwrap() > 0.0);
     let rows = r["concurrency"].as_array().unwrap();
-    assert_eq!(rows.iter().map(|x| (x["sessions"].as_u64().unwrap(), x["steps"].as_u64().unwrap())).collect::<Vec<_>>(), [(1, 2), (3, 6)]);
+    let shape: Vec<(u64, u64, u64)> =
+        rows.iter().map(|x| (x["batch_window_ms"].as_u64().unwrap(), x["sessions"].as_u64().unwrap(), x["steps"].as_u64().unwrap())).collect();
+    assert_eq!(shape, [(0, 1, 2), (0, 3, 6), (5, 1, 2), (5, 3, 6)], "each row without batching, then with");
     let (code, _, stderr) = worldpack(&["bench", "serve", "--sessions", "0"], "");
     assert_eq!(code, 2);
     assert!(stderr.contains("--sessions"), "{stderr}");

@@ -495,3 +495,35 @@ fn covisible_serving_chooses_warp_sources_among_the_observed_frames() {
         assert_eq!(used, i, "every earlier frame fits: {r}");
     }
 }
+
+/// Batching across sessions: four identical sessions step at once with the
+/// same seed and share model calls; each frame equals the frame a lone step
+/// makes, within 1/255 per pixel (a batched call may round differently).
+#[test]
+fn batched_steps_make_the_frames_a_lone_step_makes() {
+    let store = temp_store("batching");
+    let s = Server::start(&store, &["--batch-window-ms", "200", "--batch-max", "8"]);
+    let ids: Vec<u64> = (0..5)
+        .map(|_| s.post("/v1/sessions", &json!({ "synthetic": { "seed": 3 } })).1["session"].as_u64().unwrap())
+        .collect();
+    let body = json!({ "action": { "forward": true, "yaw_deg": 5 }, "seed": 11 });
+    let frames: Vec<Value> = std::thread::scope(|scope| {
+        let (s, body) = (&s, &body);
+        let workers: Vec<_> = ids[..4].iter().map(|&id| scope.spawn(move || s.post(&format!("/v1/sessions/{id}/step"), body))).collect();
+        workers.into_iter().map(|w| w.join().unwrap()).map(|(code, r)| { assert_eq!(code, 200, "{r}"); r }).collect()
+    });
+    let text = ureq::get(&format!("{}/metrics", s.url)).call().unwrap().into_string().unwrap();
+    let counter = |name: &str| text.lines().find(|l| l.starts_with(name)).and_then(|l| l.split_whitespace().nth(1)).unwrap().parse::<u64>().unwrap();
+    let (calls, items) = (counter("worldpack_batched_calls_total"), counter("worldpack_batched_items_total"));
+    assert_eq!(items, 4, "{text}");
+    assert!(calls < items, "concurrent steps shared a call: {calls} calls for {items} steps");
+    // The fifth session steps alone, in a call of its own.
+    let (code, alone) = s.post(&format!("/v1/sessions/{}/step", ids[4]), &body);
+    assert_eq!(code, 200, "{alone}");
+    let pixels = |r: &Value| world::picture::decode_rgb(&B64.decode(r["image_png"].as_str().unwrap()).unwrap()).unwrap().0;
+    let lone = pixels(&alone);
+    for r in &frames {
+        let worst = pixels(r).iter().zip(&lone).map(|(a, b)| a.abs_diff(*b)).max().unwrap();
+        assert!(worst <= 1, "a batched frame differs from the lone one by {worst}/255");
+    }
+}

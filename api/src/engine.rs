@@ -9,7 +9,6 @@ use std::time::Instant;
 
 use memory::{ContextPlan, Intrinsics, Pose};
 use model::generate::frame_to_tensor;
-use model::pack::ContextFrame;
 use model::{Model, Sampler};
 use world::World;
 use motion::Action;
@@ -17,6 +16,7 @@ use world::agent::PlayerState;
 use world::picture::{encode_depth_png16, encode_png};
 use world::render::{RenderSettings, render};
 
+use crate::batch::{self, Batcher, Item, OwnedFrame, OwnedWarp};
 use crate::error::ApiError;
 use crate::session::{GENERATED, OBSERVED, Session, player_to};
 use crate::store::{FrameMeta, FrameRecord, SessionRecord, Store};
@@ -28,6 +28,8 @@ pub struct Engine {
     pub overlay_warp: bool,
     /// Choose each step's plan and warp sources by co-visibility (`Config::covisible`).
     pub covisible: bool,
+    /// Gathers concurrent sessions' model calls into one (`Config::batch_window`); None: each step calls alone.
+    pub batcher: Option<Batcher>,
     worlds: Mutex<HashMap<u64, Arc<World>>>,
 }
 
@@ -59,7 +61,7 @@ pub struct TruthScore {
 
 impl Engine {
     pub fn new(store: Store, model: Option<Model>) -> Engine {
-        Engine { store, model, overlay_warp: false, covisible: false, worlds: Mutex::new(HashMap::new()) }
+        Engine { store, model, overlay_warp: false, covisible: false, batcher: None, worlds: Mutex::new(HashMap::new()) }
     }
 
     /// The synthetic world of `seed`, generated once and shared.
@@ -184,25 +186,34 @@ impl Engine {
             Some(spec) => s.warp_sources(&frustum, spec.frames, self.covisible)?,
             None => (Vec::new(), Vec::new()),
         };
-        let request = model::Request {
-            plan: &plan,
+        // Owned, so the call can run in a batch with other sessions' steps.
+        let item = Item {
             target_time: time,
-            target_pose: &pose,
-            action: &action_values,
+            target_pose: pose,
+            action: action_values.to_vec(),
             seed: seed.unwrap_or(time),
-            warp: &warp,
+            warp: warp.iter().map(|w| OwnedWarp { rgb: w.rgb.to_vec(), depth_mm: w.depth_mm.to_vec(), pose: *w.pose, intrinsics: *w.intrinsics }).collect(),
+            frames: plan
+                .selected()
+                .filter_map(|(_, f)| {
+                    let fr = s.frames.get(f.id as usize)?;
+                    Some((f.id, OwnedFrame { latent: fr.latent.clone(), time: fr.time, pose: fr.pose, generated: fr.generated }))
+                })
+                .collect(),
+            plan: plan.clone(),
         };
-        let frames = &s.frames;
-        let lookup = |_: usize, id: u64| frames.get(id as usize).map(|f| ContextFrame { latent: &f.latent, time: f.time, pose: &f.pose, generated: f.generated });
-        let mut prediction = m.predict(&s.policy.packing, &[request], &lookup, sampler)?;
-        let mut predicted = prediction.frames.remove(0);
+        let mut outcome = match &self.batcher {
+            Some(b) => b.predict(m, &s.policy.packing, sampler, item)?,
+            None => batch::call(m, &s.policy.packing, sampler, &[&item])?.remove(0),
+        };
+        let mut predicted = std::mem::replace(&mut outcome.frame, model::Predicted { latent: Vec::new(), rgb: Vec::new() });
         if self.overlay_warp && !warp.is_empty() {
             // What was seen stays as it was seen; the model fills what no source shows.
             let t = Instant::now();
             predicted.rgb = model::warp::forward_warp_many(&warp, &pose)?.overlay(predicted.rgb);
             let img = &m.manifest().image;
             predicted.latent = self.latent_of(&predicted.rgb, img.width as u32, img.height as u32, s.intrinsics(), "overlay")?;
-            prediction.warp_ms += ms(t);
+            outcome.warp_ms += ms(t);
         }
         let img = &m.manifest().image;
         let truth = self.truth_at(s, &pose)?.map(|t| TruthScore {
@@ -211,7 +222,7 @@ impl Engine {
         });
         let t2 = Instant::now();
         let png = encode_png(img.width as u32, img.height as u32, &predicted.rgb);
-        let decode_ms = prediction.decode_ms + ms(t2);
+        let decode_ms = outcome.decode_ms + ms(t2);
         let t3 = Instant::now();
         let index = s.frames.len() as u64;
         let record = FrameRecord { meta: meta(&pose, time, GENERATED, Some(action), player.as_ref()), latent: predicted.latent, png, depth_png16: Vec::new() };
@@ -225,9 +236,9 @@ impl Engine {
             pose,
             png: record.png,
             plan,
-            layout: prediction.layout,
+            layout: outcome.layout,
             exact_evaluations,
-            timings_ms: [select_ms, prediction.warp_ms, prediction.sample_ms, decode_ms, store_ms],
+            timings_ms: [select_ms, outcome.warp_ms, outcome.sample_ms, decode_ms, store_ms],
             warp_frames,
             truth,
             observed: false,

@@ -2,6 +2,7 @@
 //! that generates the next frame from a packed memory context, and a durable
 //! store underneath. See docs/api.md.
 
+pub mod batch;
 pub mod engine;
 pub mod error;
 pub mod openapi;
@@ -51,6 +52,10 @@ pub struct Config {
     /// Each step's plan and a geometry model's warp sources are chosen by
     /// co-visibility from the observed frames' depth (memory::covisibility).
     pub covisible: bool,
+    /// Batching across sessions: concurrent steps' model calls gathered for
+    /// up to this long into one call of at most `batch_max` items; None: off.
+    pub batch_window: Option<Duration>,
+    pub batch_max: usize,
 }
 
 impl Default for Config {
@@ -69,6 +74,8 @@ impl Default for Config {
             request_timeout: Duration::from_secs(120),
             overlay_warp: false,
             covisible: false,
+            batch_window: None,
+            batch_max: 16,
         }
     }
 }
@@ -118,6 +125,7 @@ impl Server {
         let mut engine = Engine::new(store, model);
         engine.overlay_warp = config.overlay_warp;
         engine.covisible = config.covisible;
+        engine.batcher = config.batch_window.map(|w| batch::Batcher::new(w, config.batch_max));
         let state = Arc::new(AppState {
             inflight: Semaphore::new(config.max_inflight),
             engine,

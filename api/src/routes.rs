@@ -183,14 +183,19 @@ pub async fn health(State(st): St) -> Json<Health> {
 pub async fn metrics(State(st): St) -> Response {
     let m = &st.metrics;
     let g = |a: &std::sync::atomic::AtomicU64| a.load(Ordering::Relaxed);
+    let batched = st.engine.batcher.as_ref().map(|b| (g(&b.calls), g(&b.items))).unwrap_or((0, 0));
     let text = format!(
         "# TYPE worldpack_steps_total counter\nworldpack_steps_total {}\n\
+         # TYPE worldpack_batched_calls_total counter\nworldpack_batched_calls_total {}\n\
+         # TYPE worldpack_batched_items_total counter\nworldpack_batched_items_total {}\n\
          # TYPE worldpack_observes_total counter\nworldpack_observes_total {}\n\
          # TYPE worldpack_selects_total counter\nworldpack_selects_total {}\n\
          # TYPE worldpack_sessions_created_total counter\nworldpack_sessions_created_total {}\n\
          # TYPE worldpack_step_seconds_sum counter\nworldpack_step_seconds_sum {}\n\
          # TYPE worldpack_sessions gauge\nworldpack_sessions {}\n",
         g(&m.steps),
+        batched.0,
+        batched.1,
         g(&m.observes),
         g(&m.selects),
         g(&m.sessions_created),
