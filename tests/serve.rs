@@ -260,6 +260,19 @@ fn sixteen_sessions_step_concurrently() {
 #[test]
 fn acknowledged_frames_survive_sigkill() {
     let store = temp_store("crash");
+    acknowledged_writes_survive_sigkill(&store);
+    let _ = std::fs::remove_dir_all(store.parent().unwrap());
+}
+
+/// The same crash test with the store on a real PostgreSQL cluster of the test's own.
+#[test]
+fn acknowledged_frames_survive_sigkill_on_postgres() {
+    let pg = PgCluster::start("crash");
+    acknowledged_writes_survive_sigkill(&pg.url());
+}
+
+/// Writes until the server is SIGKILLed, ten times over; every acknowledged frame is there after each restart.
+fn acknowledged_writes_survive_sigkill(store: &Path) {
     let png = {
         let s = Server::start(&temp_store("crash-src"), &[]);
         let (_, c) = s.post("/v1/sessions", &json!({ "synthetic": { "seed": 2 } }));
@@ -268,7 +281,7 @@ fn acknowledged_frames_survive_sigkill() {
     let intrinsics = json!({ "hfov_deg": 70, "width": 64, "height": 64 });
     let mut acknowledged: Vec<(u64, u64, f64)> = Vec::new(); // session, index, x
     for round in 0..10u64 {
-        let s = Server::start(&store, &["--memory-only"]);
+        let s = Server::start(store, &["--memory-only"]);
         // Everything acknowledged before is there, bit for bit.
         for &(id, index, x) in &acknowledged {
             let (code, r) = s.get(&format!("/v1/sessions/{id}/frames/{index}"));
@@ -301,12 +314,113 @@ fn acknowledged_frames_survive_sigkill() {
         assert!(!done.is_empty(), "round {round}: some writes were acknowledged before the kill");
         acknowledged.extend(done);
     }
-    let s = Server::start(&store, &["--memory-only"]);
+    let s = Server::start(store, &["--memory-only"]);
     for &(id, index, x) in &acknowledged {
         let (code, r) = s.get(&format!("/v1/sessions/{id}/frames/{index}"));
         assert_eq!((code, r["pose"]["position"][0].as_f64()), (200, Some(x)), "frame {id}/{index}");
     }
-    let _ = std::fs::remove_dir_all(store.parent().unwrap());
+}
+
+/// A throwaway PostgreSQL 15 cluster on a loopback port (initdb refuses to
+/// run as root, so as root it runs as the `postgres` user), removed on drop.
+struct PgCluster {
+    dir: PathBuf,
+    port: u16,
+}
+
+impl PgCluster {
+    fn bin(name: &str) -> PathBuf {
+        let debian = Path::new("/usr/lib/postgresql/15/bin").join(name);
+        if debian.exists() { debian } else { PathBuf::from(name) }
+    }
+
+    fn as_owner(program: PathBuf) -> Command {
+        // SAFETY: geteuid has no preconditions.
+        if unsafe { libc_geteuid() } == 0 {
+            let mut c = Command::new("runuser");
+            c.args(["-u", "postgres", "--"]).arg(program);
+            c
+        } else {
+            Command::new(program)
+        }
+    }
+
+    fn run(mut c: Command, what: &str) {
+        let out = c.output().unwrap_or_else(|e| panic!("{what}: {e} (PostgreSQL 15 must be installed)"));
+        assert!(out.status.success(), "{what}: {}{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
+    }
+
+    fn start(name: &str) -> PgCluster {
+        let dir = std::env::temp_dir().join(format!("worldpack-pg-{name}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        if unsafe { libc_geteuid() } == 0 {
+            Self::run({ let mut c = Command::new("chown"); c.args(["-R", "postgres:postgres"]).arg(&dir); c }, "chown");
+        }
+        let port = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port();
+        let data = dir.join("data");
+        let mut init = Self::as_owner(Self::bin("initdb"));
+        init.args(["-A", "trust", "-U", "postgres", "-D"]).arg(&data);
+        Self::run(init, "initdb");
+        let mut ctl = Self::as_owner(Self::bin("pg_ctl"));
+        ctl.arg("-D").arg(&data).arg("-l").arg(dir.join("log")).arg("-w").arg("-o")
+            .arg(format!("-p {port} -c listen_addresses=127.0.0.1 -k {}", dir.display())).arg("start");
+        Self::run(ctl, "pg_ctl start");
+        PgCluster { dir, port }
+    }
+
+    fn url(&self) -> PathBuf {
+        PathBuf::from(format!("postgres://postgres@127.0.0.1:{}/postgres", self.port))
+    }
+}
+
+impl Drop for PgCluster {
+    fn drop(&mut self) {
+        let mut ctl = Self::as_owner(Self::bin("pg_ctl"));
+        ctl.arg("-D").arg(self.dir.join("data")).args(["-m", "immediate", "stop"]);
+        let _ = ctl.output();
+        let _ = std::fs::remove_dir_all(&self.dir);
+    }
+}
+
+unsafe extern "C" {
+    #[link_name = "geteuid"]
+    fn libc_geteuid() -> u32;
+}
+
+/// A synthetic session's generated and observed frames (latents, images,
+/// depth, poses) on PostgreSQL, back after a SIGKILL and a restart.
+#[test]
+fn a_session_on_postgres_comes_back_whole() {
+    let pg = PgCluster::start("session");
+    let store = pg.url();
+    let s = Server::start(&store, &[]);
+    let (code, c) = s.post("/v1/sessions", &json!({ "synthetic": { "seed": 3 } }));
+    assert_eq!(code, 201, "{c}");
+    let id = c["session"].as_u64().unwrap();
+    let (code, r) = s.post(&format!("/v1/sessions/{id}/step"), &json!({ "action": { "forward": true } }));
+    assert_eq!(code, 200, "{r}");
+    let (code, r) = s.post(&format!("/v1/sessions/{id}/step"), &json!({ "action": { "forward": true }, "observe": true }));
+    assert_eq!((code, r["source"].as_str()), (200, Some("observed")), "{r}");
+    let before: Vec<(Value, Vec<u8>)> = (0..3).map(|i| (s.get(&format!("/v1/sessions/{id}/frames/{i}")).1, s.bytes(&format!("/v1/sessions/{id}/frames/{i}/image")))).collect();
+    let depth = s.bytes(&format!("/v1/sessions/{id}/frames/2/depth"));
+    s.kill();
+    let s = Server::start(&store, &[]);
+    let (code, r) = s.get(&format!("/v1/sessions/{id}"));
+    assert_eq!((code, r["frames"].as_u64(), r["has_latents"].as_bool()), (200, Some(3), Some(true)), "{r}");
+    for (i, (meta, png)) in before.iter().enumerate() {
+        assert_eq!(&s.get(&format!("/v1/sessions/{id}/frames/{i}")).1, meta, "frame {i}");
+        assert_eq!(&s.bytes(&format!("/v1/sessions/{id}/frames/{i}/image")), png, "frame {i}");
+    }
+    assert_eq!(s.bytes(&format!("/v1/sessions/{id}/frames/2/depth")), depth);
+    // The restored session steps on from its stored latents.
+    let (code, r) = s.post(&format!("/v1/sessions/{id}/step"), &json!({ "action": {} }));
+    assert_eq!((code, r["index"].as_u64()), (200, Some(3)), "{r}");
+    let (code, _) = answer(ureq::delete(&format!("{}/v1/sessions/{id}", s.url)).call());
+    assert_eq!(code, 204);
+    s.kill();
+    let s = Server::start(&store, &[]);
+    assert_eq!(s.get(&format!("/v1/sessions/{id}")).0, 404, "a deleted session stays deleted");
 }
 
 #[test]

@@ -6,6 +6,7 @@ pub mod batch;
 pub mod engine;
 pub mod error;
 pub mod openapi;
+pub mod postgres_store;
 mod routes;
 pub mod session;
 pub mod store;
@@ -113,7 +114,8 @@ pub struct Server {
 impl Server {
     /// Opens the store (restoring every session), loads the model, binds.
     pub async fn bind(config: Config) -> Result<Server, String> {
-        let store = Store::open(&config.store).map_err(|e| e.to_string())?;
+        // A PostgreSQL client blocks on a runtime of its own: never on an async worker.
+        let store = tokio::task::block_in_place(|| Store::open(&config.store)).map_err(|e| e.to_string())?;
         let model = match &config.model {
             Some(dir) => Some(Model::load(dir, config.runtime).map_err(|e| format!("--model: {e}"))?),
             None => None,
@@ -134,8 +136,8 @@ impl Server {
             config: config.clone(),
         });
         let mut restored = 0;
-        for (id, record) in state.engine.store.sessions().map_err(|e| e.to_string())? {
-            let frames = state.engine.store.frames(id).map_err(|e| e.to_string())?;
+        for (id, record) in tokio::task::block_in_place(|| state.engine.store.sessions()).map_err(|e| e.to_string())? {
+            let frames = tokio::task::block_in_place(|| state.engine.store.frames(id)).map_err(|e| e.to_string())?;
             let world = record.world_seed.map(|s| state.engine.world(s));
             let s = Session::restore(id, record, frames, world).map_err(|e| format!("restoring session {id}: {}", e.message))?;
             restored += 1;

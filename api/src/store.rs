@@ -1,7 +1,9 @@
-//! The durable store: sessions and every frame, in one `redb` file. Each
-//! write is its own transaction committed with `Durability::Immediate`
-//! (fsync before `commit` returns), and the server answers only after that,
-//! so an acknowledged frame survives a crash.
+//! The durable store: sessions and every frame. Two backends behind one
+//! type: one embedded `redb` file (the default; each write its own
+//! transaction committed with `Durability::Immediate`, fsync before `commit`
+//! returns) or a PostgreSQL database (`postgres_store`; each write committed
+//! before it returns). The server answers only after that, so an
+//! acknowledged frame survives a crash.
 
 use std::path::Path;
 
@@ -19,7 +21,7 @@ const COUNTERS: TableDefinition<&str, u64> = TableDefinition::new("counters");
 #[error("store: {0}")]
 pub struct StoreError(String);
 
-fn err(e: impl std::fmt::Display) -> StoreError {
+pub(crate) fn err(e: impl std::fmt::Display) -> StoreError {
     StoreError(e.to_string())
 }
 
@@ -85,12 +87,69 @@ impl FrameRecord {
     }
 }
 
-pub struct Store {
-    db: Database,
+/// Where sessions and frames live.
+pub enum Store {
+    Redb(RedbStore),
+    Postgres(crate::postgres_store::PgStore),
+}
+
+/// The same call on whichever backend this store is.
+macro_rules! each_backend {
+    ($self:ident, $s:ident => $call:expr) => {
+        match $self {
+            Store::Redb($s) => $call,
+            Store::Postgres($s) => $call,
+        }
+    };
 }
 
 impl Store {
+    /// A `postgres://` (or `postgresql://`) URL connects to PostgreSQL and
+    /// migrates its schema; any other path opens or creates a redb file.
     pub fn open(path: &Path) -> Result<Store, StoreError> {
+        let text = path.to_string_lossy();
+        if text.starts_with("postgres://") || text.starts_with("postgresql://") {
+            Ok(Store::Postgres(crate::postgres_store::PgStore::connect(&text)?))
+        } else {
+            Ok(Store::Redb(RedbStore::open(path)?))
+        }
+    }
+
+    /// Stores a new session with its first frame; returns its id.
+    pub fn create_session(&self, record: &SessionRecord, first: &FrameRecord) -> Result<u64, StoreError> {
+        each_backend!(self, s => s.create_session(record, first))
+    }
+
+    pub fn put_frame(&self, session: u64, index: u64, frame: &FrameRecord) -> Result<(), StoreError> {
+        each_backend!(self, s => s.put_frame(session, index, frame))
+    }
+
+    /// Removes a session and its frames; false when there was none.
+    pub fn delete_session(&self, id: u64) -> Result<bool, StoreError> {
+        each_backend!(self, s => s.delete_session(id))
+    }
+
+    pub fn sessions(&self) -> Result<Vec<(u64, SessionRecord)>, StoreError> {
+        each_backend!(self, s => s.sessions())
+    }
+
+    /// Every frame of a session, in index order.
+    pub fn frames(&self, session: u64) -> Result<Vec<FrameRecord>, StoreError> {
+        each_backend!(self, s => s.frames(session))
+    }
+
+    pub fn frame(&self, session: u64, index: u64) -> Result<Option<FrameRecord>, StoreError> {
+        each_backend!(self, s => s.frame(session, index))
+    }
+}
+
+/// The embedded backend: one redb file.
+pub struct RedbStore {
+    db: Database,
+}
+
+impl RedbStore {
+    pub fn open(path: &Path) -> Result<RedbStore, StoreError> {
         if let Some(dir) = path.parent() {
             std::fs::create_dir_all(dir).map_err(|e| err(format!("cannot create {}: {e}", dir.display())))?;
         }
@@ -100,7 +159,7 @@ impl Store {
         txn.open_table(FRAMES).map_err(err)?;
         txn.open_table(COUNTERS).map_err(err)?;
         txn.commit().map_err(err)?;
-        Ok(Store { db })
+        Ok(RedbStore { db })
     }
 
     fn write<T>(&self, f: impl FnOnce(&redb::WriteTransaction) -> Result<T, StoreError>) -> Result<T, StoreError> {

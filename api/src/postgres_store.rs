@@ -1,0 +1,131 @@
+//! The store on PostgreSQL (`--store postgres://…`): sessions and frames
+//! in tables of their own, under a versioned schema that migrates itself
+//! on connect. Every write is one committed transaction before it returns
+//! (PostgreSQL's default `synchronous_commit = on` flushes the WAL first).
+
+use std::sync::Mutex;
+
+use postgres::{Client, NoTls};
+
+use crate::store::{FrameMeta, FrameRecord, SessionRecord, StoreError, err};
+
+/// Schema versions in order; version `i + 1` is `MIGRATIONS[i]`. Append, never edit.
+const MIGRATIONS: &[&str] = &["
+    CREATE TABLE sessions (
+        id BIGSERIAL PRIMARY KEY,
+        record JSONB NOT NULL
+    );
+    CREATE TABLE frames (
+        session BIGINT NOT NULL REFERENCES sessions (id) ON DELETE CASCADE,
+        idx BIGINT NOT NULL,
+        meta JSONB NOT NULL,            -- pose (c2w), time, source, action, player
+        latent BYTEA NOT NULL,          -- f32 little-endian; empty without a model
+        png BYTEA NOT NULL,
+        depth_png16 BYTEA NOT NULL,     -- empty when none was given
+        PRIMARY KEY (session, idx)
+    );"];
+
+pub struct PgStore {
+    client: Mutex<Client>,
+}
+
+fn id(v: u64) -> Result<i64, StoreError> {
+    i64::try_from(v).map_err(|_| err(format!("id {v} does not fit PostgreSQL's BIGINT")))
+}
+
+fn latent_bytes(latent: &[f32]) -> Vec<u8> {
+    latent.iter().flat_map(|v| v.to_le_bytes()).collect()
+}
+
+fn frame_of(row: &postgres::Row) -> Result<FrameRecord, StoreError> {
+    let meta: String = row.get(0);
+    let latent: Vec<u8> = row.get(1);
+    Ok(FrameRecord {
+        meta: serde_json::from_str::<FrameMeta>(&meta).map_err(err)?,
+        latent: latent.chunks_exact(4).map(|c| f32::from_le_bytes(c.try_into().expect("4 bytes"))).collect(),
+        png: row.get(2),
+        depth_png16: row.get(3),
+    })
+}
+
+impl PgStore {
+    /// Connects and brings the schema to the newest version.
+    pub fn connect(url: &str) -> Result<PgStore, StoreError> {
+        let mut client = Client::connect(url, NoTls).map_err(|e| err(format!("{url}: {e}")))?;
+        let mut txn = client.transaction().map_err(err)?;
+        txn.batch_execute("CREATE TABLE IF NOT EXISTS schema_version (version INT NOT NULL); LOCK TABLE schema_version;").map_err(err)?;
+        let current: i32 = txn.query_one("SELECT coalesce(max(version), 0) FROM schema_version", &[]).map_err(err)?.get(0);
+        if current as usize > MIGRATIONS.len() {
+            return Err(err(format!("{url}: schema version {current} is newer than this server's {}", MIGRATIONS.len())));
+        }
+        for (i, sql) in MIGRATIONS.iter().enumerate().skip(current as usize) {
+            txn.batch_execute(sql).map_err(err)?;
+            txn.execute("INSERT INTO schema_version (version) VALUES ($1)", &[&(i as i32 + 1)]).map_err(err)?;
+        }
+        txn.commit().map_err(err)?;
+        Ok(PgStore { client: Mutex::new(client) })
+    }
+
+    fn client(&self) -> std::sync::MutexGuard<'_, Client> {
+        self.client.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
+    }
+
+    pub fn create_session(&self, record: &SessionRecord, first: &FrameRecord) -> Result<u64, StoreError> {
+        let mut client = self.client();
+        let mut txn = client.transaction().map_err(err)?;
+        let record = serde_json::to_string(record).map_err(err)?;
+        let session: i64 = txn.query_one("INSERT INTO sessions (record) VALUES ($1::text::jsonb) RETURNING id", &[&record]).map_err(err)?.get(0);
+        insert_frame(&mut txn, session, 0, first)?;
+        txn.commit().map_err(err)?;
+        Ok(session as u64)
+    }
+
+    pub fn put_frame(&self, session: u64, index: u64, frame: &FrameRecord) -> Result<(), StoreError> {
+        let mut client = self.client();
+        let mut txn = client.transaction().map_err(err)?;
+        insert_frame(&mut txn, id(session)?, id(index)?, frame)?;
+        txn.commit().map_err(err)
+    }
+
+    pub fn delete_session(&self, session: u64) -> Result<bool, StoreError> {
+        Ok(self.client().execute("DELETE FROM sessions WHERE id = $1", &[&id(session)?]).map_err(err)? > 0)
+    }
+
+    pub fn sessions(&self) -> Result<Vec<(u64, SessionRecord)>, StoreError> {
+        let rows = self.client().query("SELECT id, record::text FROM sessions ORDER BY id", &[]).map_err(err)?;
+        rows.iter()
+            .map(|r| {
+                let (session, record): (i64, String) = (r.get(0), r.get(1));
+                Ok((session as u64, serde_json::from_str(&record).map_err(err)?))
+            })
+            .collect()
+    }
+
+    pub fn frames(&self, session: u64) -> Result<Vec<FrameRecord>, StoreError> {
+        let rows = self
+            .client()
+            .query("SELECT meta::text, latent, png, depth_png16 FROM frames WHERE session = $1 ORDER BY idx", &[&id(session)?])
+            .map_err(err)?;
+        rows.iter().map(frame_of).collect()
+    }
+
+    pub fn frame(&self, session: u64, index: u64) -> Result<Option<FrameRecord>, StoreError> {
+        let row = self
+            .client()
+            .query_opt("SELECT meta::text, latent, png, depth_png16 FROM frames WHERE session = $1 AND idx = $2", &[&id(session)?, &id(index)?])
+            .map_err(err)?;
+        row.as_ref().map(frame_of).transpose()
+    }
+}
+
+/// Writes frame `index` of `session` (replacing one stored there before, as the redb store does).
+fn insert_frame(txn: &mut postgres::Transaction, session: i64, index: i64, f: &FrameRecord) -> Result<(), StoreError> {
+    let meta = serde_json::to_string(&f.meta).map_err(err)?;
+    txn.execute(
+        "INSERT INTO frames (session, idx, meta, latent, png, depth_png16) VALUES ($1, $2, $3::text::jsonb, $4, $5, $6)
+         ON CONFLICT (session, idx) DO UPDATE SET meta = EXCLUDED.meta, latent = EXCLUDED.latent, png = EXCLUDED.png, depth_png16 = EXCLUDED.depth_png16",
+        &[&session, &index, &meta, &latent_bytes(&f.latent), &f.png, &f.depth_png16],
+    )
+    .map_err(err)?;
+    Ok(())
+}
