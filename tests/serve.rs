@@ -374,6 +374,46 @@ impl PgCluster {
     }
 }
 
+impl PgCluster {
+    fn stop(&self) {
+        let mut ctl = Self::as_owner(Self::bin("pg_ctl"));
+        ctl.arg("-D").arg(self.dir.join("data")).args(["-m", "fast", "-w", "stop"]);
+        Self::run(ctl, "pg_ctl stop");
+    }
+
+    fn restart(&self) {
+        let mut ctl = Self::as_owner(Self::bin("pg_ctl"));
+        ctl.arg("-D").arg(self.dir.join("data")).arg("-l").arg(self.dir.join("log")).arg("-w").arg("-o")
+            .arg(format!("-p {} -c listen_addresses=127.0.0.1 -k {}", self.port, self.dir.display())).arg("start");
+        Self::run(ctl, "pg_ctl start");
+    }
+}
+
+/// PostgreSQL stopped under a running server: steps and observes answer 503
+/// naming the store, nothing half-written shows, and service resumes when
+/// the database is back.
+#[test]
+fn a_stopped_database_answers_503_and_service_resumes() {
+    let pg = PgCluster::start("fault");
+    let s = Server::start(&pg.url(), &[]);
+    let (_, c) = s.post("/v1/sessions", &json!({ "synthetic": { "seed": 3 } }));
+    let id = c["session"].as_u64().unwrap();
+    let step = |s: &Server| s.post(&format!("/v1/sessions/{id}/step"), &json!({ "action": { "forward": true } }));
+    assert_eq!(step(&s).0, 200);
+    pg.stop();
+    let (code, r) = step(&s);
+    assert_eq!((code, r["error"]["field"].as_str()), (503, Some("store")), "{r}");
+    let (code, r) = s.get(&format!("/v1/sessions/{id}/frames/1/image").replace("/image", ""));
+    assert_eq!((code, r["error"]["field"].as_str()), (503, Some("store")), "{r}");
+    pg.restart();
+    let (code, r) = step(&s);
+    assert_eq!((code, r["index"].as_u64()), (200, Some(2)), "the refused step left no frame behind: {r}");
+    s.kill();
+    let s = Server::start(&pg.url(), &[]);
+    let (code, r) = s.get(&format!("/v1/sessions/{id}"));
+    assert_eq!((code, r["frames"].as_u64()), (200, Some(3)), "{r}");
+}
+
 impl Drop for PgCluster {
     fn drop(&mut self) {
         let mut ctl = Self::as_owner(Self::bin("pg_ctl"));

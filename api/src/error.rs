@@ -61,6 +61,9 @@ impl From<model::ModelError> for ApiError {
 
 impl From<crate::store::StoreError> for ApiError {
     fn from(e: crate::store::StoreError) -> Self {
-        ApiError::internal(e)
+        match e {
+            crate::store::StoreError::Unavailable(_) => ApiError::new(StatusCode::SERVICE_UNAVAILABLE, "store", e.to_string()),
+            other => ApiError::internal(other),
+        }
     }
 }

@@ -26,7 +26,20 @@ const MIGRATIONS: &[&str] = &["
     );"];
 
 pub struct PgStore {
+    url: String,
     client: Mutex<Client>,
+}
+
+/// A query's error: `Unavailable` when the connection is gone, else `Failed`.
+fn db(e: postgres::Error) -> StoreError {
+    // SQLSTATE classes 08 (connection exception) and 57 (operator intervention: a shutdown).
+    let dropped = e.code().is_some_and(|c| c.code().starts_with("08") || c.code().starts_with("57"));
+    // No server error at all: the socket itself failed.
+    if e.is_closed() || dropped || e.as_db_error().is_none() {
+        StoreError::Unavailable(e.to_string())
+    } else {
+        err(e)
+    }
 }
 
 fn id(v: u64) -> Result<i64, StoreError> {
@@ -51,48 +64,55 @@ fn frame_of(row: &postgres::Row) -> Result<FrameRecord, StoreError> {
 impl PgStore {
     /// Connects and brings the schema to the newest version.
     pub fn connect(url: &str) -> Result<PgStore, StoreError> {
-        let mut client = Client::connect(url, NoTls).map_err(|e| err(format!("{url}: {e}")))?;
-        let mut txn = client.transaction().map_err(err)?;
-        txn.batch_execute("CREATE TABLE IF NOT EXISTS schema_version (version INT NOT NULL); LOCK TABLE schema_version;").map_err(err)?;
-        let current: i32 = txn.query_one("SELECT coalesce(max(version), 0) FROM schema_version", &[]).map_err(err)?.get(0);
+        let mut client = Client::connect(url, NoTls).map_err(|e| StoreError::Unavailable(format!("{url}: {e}")))?;
+        let mut txn = client.transaction().map_err(db)?;
+        txn.batch_execute("CREATE TABLE IF NOT EXISTS schema_version (version INT NOT NULL); LOCK TABLE schema_version;").map_err(db)?;
+        let current: i32 = txn.query_one("SELECT coalesce(max(version), 0) FROM schema_version", &[]).map_err(db)?.get(0);
         if current as usize > MIGRATIONS.len() {
             return Err(err(format!("{url}: schema version {current} is newer than this server's {}", MIGRATIONS.len())));
         }
         for (i, sql) in MIGRATIONS.iter().enumerate().skip(current as usize) {
-            txn.batch_execute(sql).map_err(err)?;
-            txn.execute("INSERT INTO schema_version (version) VALUES ($1)", &[&(i as i32 + 1)]).map_err(err)?;
+            txn.batch_execute(sql).map_err(db)?;
+            txn.execute("INSERT INTO schema_version (version) VALUES ($1)", &[&(i as i32 + 1)]).map_err(db)?;
         }
-        txn.commit().map_err(err)?;
-        Ok(PgStore { client: Mutex::new(client) })
+        txn.commit().map_err(db)?;
+        Ok(PgStore { url: url.to_string(), client: Mutex::new(client) })
     }
 
-    fn client(&self) -> std::sync::MutexGuard<'_, Client> {
-        self.client.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
+    /// The connection, opened again when the last one was lost (the database
+    /// restarted): requests fail with `Unavailable` while it is down and
+    /// succeed again once it is back.
+    fn client(&self) -> Result<std::sync::MutexGuard<'_, Client>, StoreError> {
+        let mut client = self.client.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
+        if client.is_closed() {
+            *client = Client::connect(&self.url, NoTls).map_err(|e| StoreError::Unavailable(format!("{}: {e}", self.url)))?;
+        }
+        Ok(client)
     }
 
     pub fn create_session(&self, record: &SessionRecord, first: &FrameRecord) -> Result<u64, StoreError> {
-        let mut client = self.client();
-        let mut txn = client.transaction().map_err(err)?;
+        let mut client = self.client()?;
+        let mut txn = client.transaction().map_err(db)?;
         let record = serde_json::to_string(record).map_err(err)?;
-        let session: i64 = txn.query_one("INSERT INTO sessions (record) VALUES ($1::text::jsonb) RETURNING id", &[&record]).map_err(err)?.get(0);
+        let session: i64 = txn.query_one("INSERT INTO sessions (record) VALUES ($1::text::jsonb) RETURNING id", &[&record]).map_err(db)?.get(0);
         insert_frame(&mut txn, session, 0, first)?;
-        txn.commit().map_err(err)?;
+        txn.commit().map_err(db)?;
         Ok(session as u64)
     }
 
     pub fn put_frame(&self, session: u64, index: u64, frame: &FrameRecord) -> Result<(), StoreError> {
-        let mut client = self.client();
-        let mut txn = client.transaction().map_err(err)?;
+        let mut client = self.client()?;
+        let mut txn = client.transaction().map_err(db)?;
         insert_frame(&mut txn, id(session)?, id(index)?, frame)?;
-        txn.commit().map_err(err)
+        txn.commit().map_err(db)
     }
 
     pub fn delete_session(&self, session: u64) -> Result<bool, StoreError> {
-        Ok(self.client().execute("DELETE FROM sessions WHERE id = $1", &[&id(session)?]).map_err(err)? > 0)
+        Ok(self.client()?.execute("DELETE FROM sessions WHERE id = $1", &[&id(session)?]).map_err(db)? > 0)
     }
 
     pub fn sessions(&self) -> Result<Vec<(u64, SessionRecord)>, StoreError> {
-        let rows = self.client().query("SELECT id, record::text FROM sessions ORDER BY id", &[]).map_err(err)?;
+        let rows = self.client()?.query("SELECT id, record::text FROM sessions ORDER BY id", &[]).map_err(db)?;
         rows.iter()
             .map(|r| {
                 let (session, record): (i64, String) = (r.get(0), r.get(1));
@@ -103,17 +123,17 @@ impl PgStore {
 
     pub fn frames(&self, session: u64) -> Result<Vec<FrameRecord>, StoreError> {
         let rows = self
-            .client()
+            .client()?
             .query("SELECT meta::text, latent, png, depth_png16 FROM frames WHERE session = $1 ORDER BY idx", &[&id(session)?])
-            .map_err(err)?;
+            .map_err(db)?;
         rows.iter().map(frame_of).collect()
     }
 
     pub fn frame(&self, session: u64, index: u64) -> Result<Option<FrameRecord>, StoreError> {
         let row = self
-            .client()
+            .client()?
             .query_opt("SELECT meta::text, latent, png, depth_png16 FROM frames WHERE session = $1 AND idx = $2", &[&id(session)?, &id(index)?])
-            .map_err(err)?;
+            .map_err(db)?;
         row.as_ref().map(frame_of).transpose()
     }
 }
@@ -126,6 +146,6 @@ fn insert_frame(txn: &mut postgres::Transaction, session: i64, index: i64, f: &F
          ON CONFLICT (session, idx) DO UPDATE SET meta = EXCLUDED.meta, latent = EXCLUDED.latent, png = EXCLUDED.png, depth_png16 = EXCLUDED.depth_png16",
         &[&session, &index, &meta, &latent_bytes(&f.latent), &f.png, &f.depth_png16],
     )
-    .map_err(err)?;
+    .map_err(db)?;
     Ok(())
 }

@@ -18,11 +18,16 @@ const FRAMES: TableDefinition<(u64, u64), &[u8]> = TableDefinition::new("frames"
 const COUNTERS: TableDefinition<&str, u64> = TableDefinition::new("counters");
 
 #[derive(Debug, thiserror::Error)]
-#[error("store: {0}")]
-pub struct StoreError(String);
+pub enum StoreError {
+    #[error("store: {0}")]
+    Failed(String),
+    /// The database cannot be reached (PostgreSQL down or the connection lost): worth retrying.
+    #[error("store unavailable: {0}")]
+    Unavailable(String),
+}
 
 pub(crate) fn err(e: impl std::fmt::Display) -> StoreError {
-    StoreError(e.to_string())
+    StoreError::Failed(e.to_string())
 }
 
 /// What a session was created with; enough to rebuild it after a restart.
