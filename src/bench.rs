@@ -42,6 +42,8 @@ pub struct Row {
     pub exact_evaluations_per_selection: f64,
     pub box_candidates_per_selection: f64,
     pub insert_us_per_frame: f64,
+    /// Resident memory the index grew by per stored frame (VmRSS before and after the inserts; Linux).
+    pub index_bytes_per_frame: Option<f64>,
     /// Occlusion-aware selection (memory::covisibility, default settings:
     /// frustum top 64, then co-visibility on a 16-column depth grid) over
     /// the same memory with every frame's coarse depth of the workload's ground.
@@ -82,12 +84,15 @@ pub fn run(workload: Workload, sizes: &[usize], queries: usize, progress: bool) 
             }
             let frames: Vec<MemoryFrame> =
                 (0..n).map(|t| MemoryFrame { id: t as u64, time: t as u64, frustum: all[t].clone() }).collect();
+            let rss_before = crate::bench_step::status_kib("VmRSS:").ok();
             let mut memory = FrameMemory::new();
             let insert_start = Instant::now();
             for f in &frames {
                 memory.insert(f.clone()).expect("unique ids");
             }
             let insert_us = insert_start.elapsed().as_secs_f64() * 1e6 / n as f64;
+            let rss_after = crate::bench_step::status_kib("VmRSS:").ok();
+            let index_bytes_per_frame = rss_before.zip(rss_after).map(|(a, b)| b.saturating_sub(a) as f64 * 1024.0 / n as f64);
             // Targets: the poses that follow the stored history.
             let targets: Vec<Frustum> = all[n..n + queries].to_vec();
 
@@ -140,6 +145,7 @@ pub fn run(workload: Workload, sizes: &[usize], queries: usize, progress: bool) 
                 exact_evaluations_per_selection: evaluations as f64 / queries as f64,
                 box_candidates_per_selection: candidates as f64 / queries as f64,
                 insert_us_per_frame: insert_us,
+                index_bytes_per_frame,
                 covisibility_median_ms: med(&covisible),
                 covisibility_p95_ms: percentile(&covisible, 0.95),
                 covisibility_vs_indexed: med(&covisible) / med(&indexed),
@@ -161,12 +167,12 @@ pub fn loglog_slope(rows: &[Row]) -> f64 {
 pub fn print(workload: Workload, rows: &[Row]) {
     println!("selection (score + plan), WorldPack policy, 22 slots, one core, workload {workload:?}");
     println!(
-        "{:>8} | {:>9} {:>9} | {:>10} {:>10} | {:>10} {:>4} | {:>9} {:>9} | {:>8} {:>8} | {:>7} | {:>9} {:>7}",
-        "frames", "idx med", "idx p95", "brute med", "brute p95", "MC10k med", "reps", "x brute", "x MC", "evals", "boxes", "ins µs", "covis med", "x idx"
+        "{:>8} | {:>9} {:>9} | {:>10} {:>10} | {:>10} {:>4} | {:>9} {:>9} | {:>8} {:>8} | {:>7} {:>8} | {:>9} {:>7}",
+        "frames", "idx med", "idx p95", "brute med", "brute p95", "MC10k med", "reps", "x brute", "x MC", "evals", "boxes", "ins µs", "B/frame", "covis med", "x idx"
     );
     for r in rows {
         println!(
-            "{:>8} | {:>7.3}ms {:>7.3}ms | {:>8.2}ms {:>8.2}ms | {:>8.1}ms {:>4} | {:>8.1}x {:>8.0}x | {:>8.1} {:>8.1} | {:>7.1} | {:>7.3}ms {:>6.2}x",
+            "{:>8} | {:>7.3}ms {:>7.3}ms | {:>8.2}ms {:>8.2}ms | {:>8.1}ms {:>4} | {:>8.1}x {:>8.0}x | {:>8.1} {:>8.1} | {:>7.1} {:>8} | {:>7.3}ms {:>6.2}x",
             r.frames,
             r.indexed_median_ms,
             r.indexed_p95_ms,
@@ -179,6 +185,7 @@ pub fn print(workload: Workload, rows: &[Row]) {
             r.exact_evaluations_per_selection,
             r.box_candidates_per_selection,
             r.insert_us_per_frame,
+            r.index_bytes_per_frame.map_or("n/a".to_string(), |b| format!("{b:.0}")),
             r.covisibility_median_ms,
             r.covisibility_vs_indexed
         );

@@ -84,7 +84,7 @@ pub struct Probe {
     pub hwm_reset: bool,
 }
 
-fn status_kib(key: &str) -> Result<u64> {
+pub(crate) fn status_kib(key: &str) -> Result<u64> {
     let status = std::fs::read_to_string("/proc/self/status").context("reading /proc/self/status (Linux only)")?;
     let line = status.lines().find(|l| l.starts_with(key)).with_context(|| format!("no {key} in /proc/self/status"))?;
     Ok(line.split_whitespace().nth(1).unwrap_or("0").parse()?)
