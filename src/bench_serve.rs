@@ -78,18 +78,24 @@ pub fn run(
 
     // The HTTP path: the real server on loopback, in this process.
     let http_store = temp_store("http");
-    let config = api::Config {
-        addr: "127.0.0.1:0".parse()?,
-        store: http_store.clone(),
-        model: Some(model_dir.to_path_buf()),
-        runtime,
-        steps,
-        ..api::Config::default()
-    };
     let rt = tokio::runtime::Builder::new_multi_thread().enable_all().build()?;
-    let server = rt.block_on(api::Server::bind(config)).map_err(anyhow::Error::msg)?;
-    let base = format!("http://{}", server.local_addr());
-    rt.spawn(server.run());
+    let serve = |store: &Path, batch_window: Option<std::time::Duration>| -> Result<String> {
+        let config = api::Config {
+            addr: "127.0.0.1:0".parse()?,
+            store: store.to_path_buf(),
+            model: Some(model_dir.to_path_buf()),
+            runtime,
+            steps,
+            batch_window,
+            batch_max: sessions.iter().copied().max().unwrap_or(1),
+            ..api::Config::default()
+        };
+        let server = rt.block_on(api::Server::bind(config)).map_err(anyhow::Error::msg)?;
+        let base = format!("http://{}", server.local_addr());
+        rt.spawn(server.run());
+        Ok(base)
+    };
+    let base = serve(&http_store, None)?;
     let id = post(&format!("{base}/v1/sessions"), &json!({ "synthetic": { "seed": 3 }, "policy": policy }))?["session"].as_u64().context("session id")?;
 
     let (mut lib_ms, mut http_ms) = (Vec::new(), Vec::new());
@@ -113,19 +119,7 @@ pub fn run(
     if batch_window_ms > 0 {
         // The same rows against a second server that batches across sessions.
         let batched_store = temp_store("batched");
-        let config = api::Config {
-            addr: "127.0.0.1:0".parse()?,
-            store: batched_store.clone(),
-            model: Some(model_dir.to_path_buf()),
-            runtime,
-            steps,
-            batch_window: Some(std::time::Duration::from_millis(batch_window_ms)),
-            batch_max: sessions.iter().copied().max().unwrap_or(1),
-            ..api::Config::default()
-        };
-        let server = rt.block_on(api::Server::bind(config)).map_err(anyhow::Error::msg)?;
-        let batched = format!("http://{}", server.local_addr());
-        rt.spawn(server.run());
+        let batched = serve(&batched_store, Some(std::time::Duration::from_millis(batch_window_ms)))?;
         concurrency.extend(concurrent_steps(&batched, batch_window_ms, sessions, per_session)?);
         let _ = std::fs::remove_dir_all(batched_store.parent().unwrap());
     }

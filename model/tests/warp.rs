@@ -36,14 +36,29 @@ fn agreement(ours: &Warped, rgb: &[u8], mask: &[u8]) -> (usize, usize) {
     (same_mask, same_rgb)
 }
 
-#[test]
-fn the_warp_and_its_encoding_match_the_trainer() {
+/// The export's warp cases: source frames (N, H, W, 3) with depth, and the poses to warp between.
+struct WarpCases {
+    model: Model,
+    k: Intrinsics,
+    shape: Vec<usize>,
+    rgb: Vec<u8>,
+    depth: Vec<u16>,
+    src: Vec<Pose>,
+    dst: Vec<Pose>,
+}
+
+fn warp_cases() -> WarpCases {
     let model = Model::load(&fixture(), RuntimeOptions { provider: Provider::Cpu, threads: 1 }).expect("the geometry model loads");
     let k = model.manifest().intrinsics;
     let (shape, rgb) = cases::<u8>("rgb");
-    let (_, depth) = cases::<u16>("depth_mm");
-    let src: Vec<Pose> = cases::<f64>("src_c2w").1.chunks(16).map(pose).collect();
-    let dst: Vec<Pose> = cases::<f64>("dst_c2w").1.chunks(16).map(pose).collect();
+    let src = cases::<f64>("src_c2w").1.chunks(16).map(pose).collect();
+    let dst = cases::<f64>("dst_c2w").1.chunks(16).map(pose).collect();
+    WarpCases { model, k, shape, rgb, depth: cases::<u16>("depth_mm").1, src, dst }
+}
+
+#[test]
+fn the_warp_and_its_encoding_match_the_trainer() {
+    let WarpCases { model, k, shape, rgb, depth, src, dst } = warp_cases();
     let (_, warped) = cases::<u8>("warped");
     let (_, mask) = cases::<u8>("mask");
     let (n, pixels) = (shape[0], shape[1] * shape[2]);
@@ -90,12 +105,7 @@ fn the_warp_and_its_encoding_match_the_trainer() {
 /// them; with depth missing on a fifth of the pixels, most of the warp stays.
 #[test]
 fn noisy_or_missing_depth_degrades_the_warp_gracefully() {
-    let model = Model::load(&fixture(), RuntimeOptions { provider: Provider::Cpu, threads: 1 }).expect("the geometry model loads");
-    let k = model.manifest().intrinsics;
-    let (shape, rgb) = cases::<u8>("rgb");
-    let (_, depth) = cases::<u16>("depth_mm");
-    let src: Vec<Pose> = cases::<f64>("src_c2w").1.chunks(16).map(pose).collect();
-    let dst: Vec<Pose> = cases::<f64>("dst_c2w").1.chunks(16).map(pose).collect();
+    let WarpCases { k, shape, rgb, depth, src, dst, .. } = warp_cases();
     let pixels = shape[1] * shape[2];
     let mut rng = memory::rng::SplitMix64::new(7);
     for i in 0..shape[0] {
