@@ -104,6 +104,8 @@ impl Batcher {
 
     /// Gathers for one window, then runs batches until the queue is empty.
     fn lead(&self, model: &Model) {
+        // Should a model call panic, the next step to arrive must be able to lead.
+        let _unwinding = StepDown(&self.leading);
         let deadline = Instant::now() + self.window;
         while Instant::now() < deadline && self.queue.lock().expect("batch queue").len() < self.max {
             std::thread::sleep(Duration::from_micros(200));
@@ -152,6 +154,17 @@ impl Batcher {
             Err(e) => {
                 let _ = batch[0].reply.send(Err(e));
             }
+        }
+    }
+}
+
+/// Gives up leadership when a leader unwinds (its batch's steps get an error; the rest wait for the next leader).
+struct StepDown<'a>(&'a AtomicBool);
+
+impl Drop for StepDown<'_> {
+    fn drop(&mut self) {
+        if std::thread::panicking() {
+            self.0.store(false, Ordering::Release);
         }
     }
 }
