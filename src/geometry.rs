@@ -4,11 +4,11 @@
 //! array) on stdout. The OpenCV convention tests and the Python training code
 //! call the Rust implementation through this, so there is one source of truth.
 
+use std::collections::HashMap;
+
 use memory::overlap::exact_overlap;
 use memory::policy::{LatentGrid, PolicySpec};
 use memory::input::{IntrinsicsInput, PoseInput};
-use std::collections::HashMap;
-
 use memory::covisibility::{self, CoVisibility, DepthGrid};
 use memory::{AngleUnit, Estimator, FrameMemory, Frustum, InputError, MemoryFrame, Pose, Pose5Convention, select};
 use serde::Deserialize;

@@ -202,18 +202,18 @@ impl Engine {
                 .collect(),
             plan: plan.clone(),
         };
-        let mut outcome = match &self.batcher {
+        let outcome = match &self.batcher {
             Some(b) => b.predict(m, &s.policy.packing, sampler, item)?,
             None => batch::call(m, &s.policy.packing, sampler, &[&item])?.remove(0),
         };
-        let mut predicted = std::mem::replace(&mut outcome.frame, model::Predicted { latent: Vec::new(), rgb: Vec::new() });
+        let batch::Outcome { frame: mut predicted, layout, mut warp_ms, sample_ms, decode_ms: model_decode_ms, .. } = outcome;
         if self.overlay_warp && !warp.is_empty() {
             // What was seen stays as it was seen; the model fills what no source shows.
             let t = Instant::now();
             predicted.rgb = model::warp::forward_warp_many(&warp, &pose)?.overlay(predicted.rgb);
             let img = &m.manifest().image;
             predicted.latent = self.latent_of(&predicted.rgb, img.width as u32, img.height as u32, s.intrinsics(), "overlay")?;
-            outcome.warp_ms += ms(t);
+            warp_ms += ms(t);
         }
         let img = &m.manifest().image;
         let truth = self.truth_at(s, &pose)?.map(|t| TruthScore {
@@ -222,7 +222,7 @@ impl Engine {
         });
         let t2 = Instant::now();
         let png = encode_png(img.width as u32, img.height as u32, &predicted.rgb);
-        let decode_ms = outcome.decode_ms + ms(t2);
+        let decode_ms = model_decode_ms + ms(t2);
         let t3 = Instant::now();
         let index = s.frames.len() as u64;
         let record = FrameRecord { meta: meta(&pose, time, GENERATED, Some(action), player.as_ref()), latent: predicted.latent, png, depth_png16: Vec::new() };
@@ -236,9 +236,9 @@ impl Engine {
             pose,
             png: record.png,
             plan,
-            layout: outcome.layout,
+            layout,
             exact_evaluations,
-            timings_ms: [select_ms, outcome.warp_ms, outcome.sample_ms, decode_ms, store_ms],
+            timings_ms: [select_ms, warp_ms, sample_ms, decode_ms, store_ms],
             warp_frames,
             truth,
             observed: false,

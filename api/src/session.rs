@@ -1,13 +1,14 @@
 //! A live session: its policy, the indexed frame memory, every frame's pose
 //! and latent, and (in the synthetic world) the player for the motion model.
 
+use std::borrow::Cow;
 use std::collections::HashMap;
 use std::sync::Arc;
 
 use memory::covisibility::{self, CoVisibility, DepthGrid};
 use memory::{ContextPlan, FrameMemory, Frustum, Intrinsics, MemoryFrame, Policy, PolicySpec, Pose};
 use model::WarpSource;
-use model::warp::DEPTH_UNIT_M;
+use model::warp::coarse_depth;
 use world::World;
 use motion::{Action, Kinematic, MotionModel};
 use world::agent::PlayerState;
@@ -58,10 +59,8 @@ pub fn policy_of(spec: &serde_json::Value) -> Result<Policy, ApiError> {
     Ok(spec.into_policy().map_err(|e| e.within("policy"))?)
 }
 
-/// Depth in millimetres (0: none) pooled to a coarse grid in metres (memory::covisibility).
 fn pool_depth(depth_mm: &[u16], k: &Intrinsics, cells: u32) -> Result<DepthGrid, ApiError> {
-    let metres: Vec<f32> = depth_mm.iter().map(|&mm| (mm as f64 * DEPTH_UNIT_M) as f32).collect();
-    DepthGrid::pool(&metres, k, cells).map_err(|e| ApiError::bad("covisibility.cells", e.to_string()))
+    coarse_depth(depth_mm, k, cells).map_err(|e| ApiError::bad("covisibility.cells", e.to_string()))
 }
 
 pub fn pose_of(meta: &FrameMeta) -> Result<Pose, ApiError> {
@@ -131,12 +130,12 @@ impl Session {
 
     /// Every observed frame's depth pooled to `cells` columns (metres;
     /// memory::covisibility), by frame index.
-    pub fn depth_grids(&self, cells: u32) -> Result<HashMap<u64, DepthGrid>, ApiError> {
+    pub fn depth_grids(&self, cells: u32) -> Result<Cow<'_, HashMap<u64, DepthGrid>>, ApiError> {
         if cells == CoVisibility::default().cells {
-            return Ok(self.depth_grids.clone());
+            return Ok(Cow::Borrowed(&self.depth_grids));
         }
         let k = self.intrinsics();
-        self.depth_frames.iter().map(|(&id, d)| Ok((id, pool_depth(&d.depth_mm, k, cells)?))).collect()
+        Ok(Cow::Owned(self.depth_frames.iter().map(|(&id, d)| Ok((id, pool_depth(&d.depth_mm, k, cells)?))).collect::<Result<_, ApiError>>()?))
     }
 
     /// The session policy's plan for `target` by co-visibility (default settings).

@@ -8,7 +8,7 @@ use std::collections::HashMap;
 
 use memory::covisibility::{self, DepthGrid};
 use memory::{ContextPlan, FrameMemory, Frustum, MemoryFrame, Policy};
-use model::warp::DEPTH_UNIT_M;
+use model::warp;
 use model::pack::ContextFrame;
 use model::{Request, WarpSource};
 
@@ -33,11 +33,10 @@ fn observed(frusta: &[Frustum], upto: usize) -> Result<FrameMemory, ProbeError> 
 }
 
 /// Frames `0..upto` of `traj`, their depth pooled to `cells` columns (metres).
-fn coarse_depth(traj: &Trajectory, upto: usize, cells: u32) -> Result<HashMap<u64, DepthGrid>, ProbeError> {
+fn exploration_depth(traj: &Trajectory, upto: usize, cells: u32) -> Result<HashMap<u64, DepthGrid>, ProbeError> {
     (0..upto)
         .map(|t| {
-            let metres: Vec<f32> = traj.depth(t).iter().map(|&mm| (mm as f64 * DEPTH_UNIT_M) as f32).collect();
-            let grid = DepthGrid::pool(&metres, &traj.intrinsics, cells).map_err(|e| ProbeError::Invalid(e.to_string()))?;
+            let grid = warp::coarse_depth(traj.depth(t), &traj.intrinsics, cells).map_err(|e| ProbeError::Invalid(e.to_string()))?;
             Ok((t as u64, grid))
         })
         .collect()
@@ -151,7 +150,7 @@ pub fn rollout_as(
                     let frusta = traj.frusta()?;
                     // Co-visibility reads the exploration's depth; generated frames have none.
                     let depth = match &covisibility {
-                        Some(c) => coarse_depth(traj, range.start, c.cells)?,
+                        Some(c) => exploration_depth(traj, range.start, c.cells)?,
                         None => HashMap::new(),
                     };
                     Ok(Run {

@@ -53,6 +53,13 @@ impl Warped {
     }
 }
 
+/// A depth map in this module's millimetres (0: nothing in range), pooled to
+/// the coarse grid occlusion-aware selection reads (`memory::covisibility`).
+pub fn coarse_depth(depth_mm: &[u16], intrinsics: &Intrinsics, cells: u32) -> Result<memory::covisibility::DepthGrid, memory::InputError> {
+    let metres: Vec<f32> = depth_mm.iter().map(|&mm| (mm as f64 * DEPTH_UNIT_M) as f32).collect();
+    memory::covisibility::DepthGrid::pool(&metres, intrinsics, cells)
+}
+
 /// `src` as the camera at `dst` would see it. Each source pixel lands on the
 /// target pixel nearest its projection (`floor(x + 0.5)`) behind a z-buffer;
 /// ties go to the earlier pixel in row-major order. A pixel with depth 0 is
