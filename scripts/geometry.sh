@@ -9,6 +9,9 @@
 #   ./scripts/geometry.sh train            # STEPS (8000 in all, from the recipe's 2,337), MINUTES
 #   ./scripts/geometry.sh export           # -> fixtures/variants/worldpack_geometry
 #   ./scripts/geometry.sh eval | probe | walk
+# POLICY=nearest_frame_packing RUN=runs/geo_nfp OUT=... trains and exports the
+# same fine-tune from another recipe model (the issue-19 ablation: NFP with the
+# warp input, its warps made only from the frames its own plan selected).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 run="${RUN:-runs/geo}"
@@ -17,20 +20,24 @@ steps="${STEPS:-8000}"
 threads="${THREADS:-1}"
 bin=target/release/worldpack
 geo="worldpack_geometry=$out"
+policy="${POLICY:-worldpack}"
 recipe=fixtures/variants/worldpack_recipe
+init_model=fixtures/variants/${policy}_recipe   # the recipe model this fine-tune starts from
+init_run=runs/${policy}_recipe
+[ "$policy" = worldpack ] && init_run=runs/wp_recipe
 
 case "${1:-}" in
   train)
     mkdir -p "$run"
-    [ -f runs/wp_recipe/cdit-worldpack.pt ] || ./scripts/model.sh recover --model "$recipe" --run runs/wp_recipe
+    [ -f "$init_run/cdit-$policy.pt" ] || ./scripts/model.sh recover --model "$init_model" --run "$init_run"
     [ -e "$run/latents" ] || ln -s "$PWD/runs/base/latents" "$run/latents"
     [ -e "$run/autoencoder.pt" ] || ln -s "$PWD/runs/base/autoencoder.pt" "$run/autoencoder.pt"
-    [ -f "$run/config.json" ] || cp runs/wp_recipe/config.json "$run/config.json"
-    ./scripts/model.sh train --data data/train120 --run "$run" --policy worldpack --steps "$steps" ${MINUTES:+--minutes "$MINUTES"} \
-        --init-from runs/wp_recipe/cdit-worldpack.pt --threads "$threads" --memory-focus 0.5 \
+    [ -f "$run/config.json" ] || cp "$init_run/config.json" "$run/config.json"
+    ./scripts/model.sh train --data data/train120 --run "$run" --policy "$policy" --steps "$steps" ${MINUTES:+--minutes "$MINUTES"} \
+        --init-from "$init_run/cdit-$policy.pt" --threads "$threads" --memory-focus 0.5 \
         --context-noise 0.7 --generated-level 0.3 --warp ;;
   export)
-    ./scripts/model.sh export --run "$run" --policy worldpack --layouts worldpack --data data/val --out "$out" --half --threads "$threads" ;;
+    ./scripts/model.sh export --run "$run" --policy "$policy" --layouts "$policy" --data data/val --out "$out" --half --threads "$threads" ;;
   eval)
     # The rows session 8 measured are reused from runs/recipe/eval-test/rows when their models are unchanged.
     "$bin" eval --suite data/loopnav-test --models fixtures/variants --policies baseline --out runs/recipe/eval-test \

@@ -79,6 +79,9 @@ pub struct Options {
     /// A model row to run again with occlusion-aware selection of its plans and warp sources, as a row "NAME_covisible" (repeatable).
     #[arg(long = "covisible")]
     pub covisible: Vec<String>,
+    /// A geometry-model row to run again warping only observed frames its own plan selected (no retrieval beyond its context), as a row "NAME_plan_warps" (repeatable).
+    #[arg(long = "plan-warps")]
+    pub plan_warps: Vec<String>,
 }
 
 impl Options {
@@ -105,6 +108,7 @@ impl Options {
             strip_frames: self.strip_frames,
             composites: self.composites.clone(),
             covisible: self.covisible.clone(),
+            plan_warps: self.plan_warps.clone(),
         }
     }
 }

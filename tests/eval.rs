@@ -421,8 +421,8 @@ fn a_model_changed_in_place_is_not_mistaken_for_its_saved_rows() {
 }
 
 /// The occluder suite and occlusion-aware selection in rollouts: the geometry
-/// model runs once with frustum-overlap plans and warp sources and once with
-/// co-visible ones, on two walled scenes.
+/// model runs with frustum-overlap plans and warp sources, with co-visible
+/// ones, and warping only its own plan's frames, on two walled scenes.
 #[test]
 fn occluder_scenes_and_co_visible_rollouts() {
     let suite = temp("occluders");
@@ -438,19 +438,23 @@ fn occluder_scenes_and_co_visible_rollouts() {
     let geometry = root().join("fixtures/variants/worldpack_geometry");
     let extra = format!("worldpack_geometry={}", geometry.display());
     let args = ["eval", "--suite", suite.to_str().unwrap(), "--out", out.to_str().unwrap(), "--max-frames", "4", "--steps", "2", "--threads", "1",
-        "--policies", "baseline", "--no-references", "--extra", &extra, "--covisible", "worldpack_geometry"];
+        "--policies", "baseline", "--no-references", "--extra", &extra, "--covisible", "worldpack_geometry", "--plan-warps", "worldpack_geometry"];
     ok(&args);
     let results = json(&out.join("results.json"));
     let rows: Vec<&str> = results["rows"].as_array().unwrap().iter().map(|r| r["name"].as_str().unwrap()).collect();
-    assert_eq!(rows, ["baseline", "worldpack_geometry", "worldpack_geometry_covisible"]);
-    for per_traj in results["per_frame"]["worldpack_geometry_covisible"].as_array().unwrap() {
-        let frames = per_traj.as_array().unwrap();
-        assert_eq!(frames.len(), 4);
-        assert!(frames.iter().all(|f| f["psnr"].as_f64().unwrap() > 5.0), "{per_traj}");
+    assert_eq!(rows, ["baseline", "worldpack_geometry", "worldpack_geometry_covisible", "worldpack_geometry_plan_warps"]);
+    for row in ["worldpack_geometry_covisible", "worldpack_geometry_plan_warps"] {
+        for per_traj in results["per_frame"][row].as_array().unwrap() {
+            let frames = per_traj.as_array().unwrap();
+            assert_eq!(frames.len(), 4);
+            assert!(frames.iter().all(|f| f["psnr"].as_f64().unwrap() > 5.0), "{row}: {per_traj}");
+        }
     }
-    let bad = run(&["eval", "--suite", suite.to_str().unwrap(), "--out", out.to_str().unwrap(), "--covisible", "nope", "--no-references"]);
-    let err = String::from_utf8_lossy(&bad.stderr);
-    assert!(!bad.status.success() && err.contains("--covisible") && err.contains("nope"), "{err}");
+    for (flag, row, says) in [("--covisible", "nope", "nope"), ("--plan-warps", "baseline", "no warp input")] {
+        let bad = run(&["eval", "--suite", suite.to_str().unwrap(), "--out", out.to_str().unwrap(), "--policies", "baseline", flag, row, "--no-references"]);
+        let err = String::from_utf8_lossy(&bad.stderr);
+        assert!(!bad.status.success() && err.contains(flag) && err.contains(says), "{err}");
+    }
     let _ = std::fs::remove_dir_all(&suite);
     let _ = std::fs::remove_dir_all(&out);
 }

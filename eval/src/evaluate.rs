@@ -63,6 +63,10 @@ pub struct Settings {
     /// Model rows whose policy runs again with occlusion-aware selection of
     /// its plans and warp sources (memory::covisibility), as a row "NAME_covisible" each.
     pub covisible: Vec<String>,
+    /// Geometry-model rows to run again warping only the observed frames their
+    /// own plan selected, as a row "NAME_plan_warps" each (the ablation of
+    /// retrieval for a policy that has none, such as nearest frame packing).
+    pub plan_warps: Vec<String>,
     /// Model rows whose predictions fill the fused warp's holes in a
     /// composite row each (with the references; empty: the baseline).
     pub composites: Vec<String>,
@@ -242,6 +246,16 @@ pub fn evaluate(s: &Settings, progress: &dyn Fn(Progress)) -> Result<Evaluation,
         };
         let predictor = Predictor::CoVisible { model, policy: policy.clone(), sampler: sampler(model)?, settings: CoVisibility::default() };
         rows.push((Row { name: format!("{name}_covisible"), predictor }, m));
+    }
+    for name in &s.plan_warps {
+        let Some((Predictor::Model { model, policy, .. }, m)) = rows.iter().find(|(r, _)| &r.name == name).map(|(r, m)| (&r.predictor, *m)) else {
+            return Err(setting("--plan-warps", format!("no model row called {name:?}")));
+        };
+        if model.manifest().denoiser.warp.is_none() {
+            return Err(setting("--plan-warps", format!("{name}: its model has no warp input")));
+        }
+        let predictor = Predictor::PlanWarps { model, policy: policy.clone(), sampler: sampler(model)? };
+        rows.push((Row { name: format!("{name}_plan_warps"), predictor }, m));
     }
     if let Some(dup) = rows.iter().enumerate().find(|(i, (r, _))| rows[..*i].iter().any(|(q, _)| q.name == r.name)) {
         return Err(setting("--extra", format!("two rows are called {:?}", dup.1.0.name)));

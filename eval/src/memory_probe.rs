@@ -206,7 +206,10 @@ pub fn probe(o: &Settings, progress: &dyn Fn(Progress)) -> Result<Report, Progra
     let mut first_latents = latent_cache(&trajectories[0]);
     for row in &rows {
         let latents = match &row.predictor {
-            Predictor::Model { model, .. } | Predictor::Composite { model, .. } | Predictor::CoVisible { model, .. } => first_latents(model)?,
+            Predictor::Model { model, .. }
+            | Predictor::Composite { model, .. }
+            | Predictor::CoVisible { model, .. }
+            | Predictor::PlanWarps { model, .. } => first_latents(model)?,
             _ => Rc::default(),
         };
         latencies.push(latency_ms(&trajectories[0], row, &latents, o.latency_calls)?);

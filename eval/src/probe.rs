@@ -46,6 +46,10 @@ pub enum Predictor<'a> {
     /// A model whose plans and warp sources are chosen by co-visibility from
     /// the observed frames' depth (memory::covisibility); rollouts only.
     CoVisible { model: &'a Model, policy: Policy, sampler: Sampler, settings: CoVisibility },
+    /// A geometry model that warps only observed frames its own plan selected,
+    /// not the best-overlap frames of all memory: a policy without retrieval
+    /// (nearest frame packing) stays without it; rollouts only.
+    PlanWarps { model: &'a Model, policy: Policy, sampler: Sampler },
 }
 
 
@@ -59,7 +63,10 @@ impl Predictor<'_> {
     /// The memory policy a row selects with (references: the best-overlap frames).
     pub fn policy(&self) -> Policy {
         match self {
-            Predictor::Model { policy, .. } | Predictor::Composite { policy, .. } | Predictor::CoVisible { policy, .. } => policy.clone(),
+            Predictor::Model { policy, .. }
+            | Predictor::Composite { policy, .. }
+            | Predictor::CoVisible { policy, .. }
+            | Predictor::PlanWarps { policy, .. } => policy.clone(),
             Predictor::Copy | Predictor::Reproject => Policy::best_overlap(),
             Predictor::ReprojectFused => Policy::best_overlap_frames(FUSED_FRAMES),
         }
@@ -351,7 +358,9 @@ pub fn probe_trajectory(
                     progress(1);
                 }
             }
-            Predictor::CoVisible { .. } => return Err(ProbeError::Invalid(format!("{}: co-visible rows run in rollouts (`worldpack eval`) only", row.name))),
+            Predictor::CoVisible { .. } | Predictor::PlanWarps { .. } => {
+                return Err(ProbeError::Invalid(format!("{}: co-visible and plan-warp rows run in rollouts (`worldpack eval`) only", row.name)));
+            }
         }
         scores.push(out);
     }
@@ -389,7 +398,9 @@ pub fn latency_ms(traj: &Trajectory, row: &Row, latents: &[Vec<f32>], calls: usi
                         std::hint::black_box(img);
                     })?;
                 }
-                Predictor::CoVisible { .. } => return Err(ProbeError::Invalid(format!("{}: co-visible rows run in rollouts only", row.name))),
+                Predictor::CoVisible { .. } | Predictor::PlanWarps { .. } => {
+                    return Err(ProbeError::Invalid(format!("{}: co-visible and plan-warp rows run in rollouts only", row.name)));
+                }
                 reference => {
                     std::hint::black_box(reference_image(traj, reference, &plan, t));
                 }

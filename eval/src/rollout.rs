@@ -32,6 +32,15 @@ fn observed(frusta: &[Frustum], upto: usize) -> Result<FrameMemory, ProbeError> 
     Ok(store)
 }
 
+/// The observed frames among `plan`'s: all a row without retrieval may warp.
+fn within_plan(observed: &FrameMemory, plan: &ContextPlan) -> Result<FrameMemory, ProbeError> {
+    let mut store = FrameMemory::new();
+    for frame in plan.selected().filter_map(|(_, f)| observed.get(f.id)) {
+        store.insert(frame.clone()).map_err(|e| ProbeError::Invalid(e.to_string()))?;
+    }
+    Ok(store)
+}
+
 /// Frames `0..upto` of `traj`, their depth pooled to `cells` columns (metres).
 fn exploration_depth(traj: &Trajectory, upto: usize, cells: u32) -> Result<HashMap<u64, DepthGrid>, ProbeError> {
     (0..upto)
@@ -132,9 +141,16 @@ pub fn rollout_as(
             let (scores, frames) = trajs.iter().map(|t| reference(t, &row.predictor, max_frames, scorer, progress)).collect::<Result<Vec<_>, _>>()?.into_iter().unzip();
             Ok(RowOutput { scores, frames })
         }
-        Predictor::CoVisible { model, policy, sampler, .. } | Predictor::Model { model, policy, sampler } | Predictor::Composite { model, policy, sampler } => {
+        Predictor::CoVisible { model, policy, sampler, .. }
+        | Predictor::Model { model, policy, sampler }
+        | Predictor::Composite { model, policy, sampler }
+        | Predictor::PlanWarps { model, policy, sampler } => {
             model.layout_for(&policy.packing)?; // before any work: a policy the model cannot take fails at once
             let warp_policy = crate::probe::warp_policy(model);
+            let plan_warps = matches!(row.predictor, Predictor::PlanWarps { .. });
+            if plan_warps && warp_policy.is_none() {
+                return Err(ProbeError::Invalid(format!("{}: a plan-warp row needs a model with the warp input", row.name)));
+            }
             let covisibility = match &row.predictor {
                 Predictor::CoVisible { settings, .. } => Some(settings.validated().map_err(|e| ProbeError::Invalid(e.to_string()))?),
                 _ => None,
@@ -186,6 +202,7 @@ pub fn rollout_as(
                         };
                         let source = match (&warp_policy, &covisibility) {
                             (None, _) => None,
+                            (Some(p), _) if plan_warps => Some(within_plan(&r.observed, &plan)?.select(p, target, None).0),
                             (Some(p), None) => Some(r.observed.select(p, target, None).0),
                             (Some(p), Some(c)) => Some(covisibility::select(&r.observed, p, target, c, None, |id| r.depth.get(&id)).map_err(invalid)?.0),
                         };
@@ -333,4 +350,24 @@ pub fn clip_fvd(
     boots.sort_by(f64::total_cmp);
     let at = |q: f64| boots.get(((q * (boots.len().max(1) - 1) as f64).round()) as usize).copied().unwrap_or(f64::NAN);
     Ok(Some(FvdEstimate { clips: n, fvd, lo: at(0.025), hi: at(0.975) }))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use memory::policy::{SelectedFrame, Slot};
+    use memory::{Intrinsics, Pose};
+
+    #[test]
+    fn a_plan_warp_row_warps_only_the_observed_frames_of_its_plan() {
+        let k = Intrinsics::from_fov(70.0, None, 64, 64).unwrap();
+        let frusta: Vec<Frustum> = (0..12).map(|x| Frustum::new(Pose::from_position(glam::DVec3::new(x as f64, 0.0, 0.0)), k).unwrap()).collect();
+        let observed = observed(&frusta, 8).unwrap(); // frames 8.. are generated
+        let pick = |id: u64| Some(SelectedFrame { id, time: id, overlap: 0.5, score: 0.5 });
+        let plan = ContextPlan { slots: [11, 3, 9, 6].into_iter().map(|id| Slot { rate: 1, frame: pick(id) }).chain([Slot { rate: 4, frame: None }]).collect() };
+        let pool = within_plan(&observed, &plan).unwrap();
+        let mut ids: Vec<u64> = pool.frames().iter().map(|f| f.id).collect();
+        ids.sort();
+        assert_eq!(ids, [3, 6], "frames 11 and 9 are generated, the rest of memory is not in the plan");
+    }
 }
