@@ -22,6 +22,10 @@
 //! 3. fills the remaining slots with zero-overlap frames, newest first, whose
 //!    score `−w_t·Δt_i` is known without any geometry.
 //!
+//! Every clip here, of a hull or of a member, stops as soon as the partly
+//! clipped target proves the bound below what the frame (or the group's
+//! newest member) would need to enter (`overlap::overlap_unless_below`).
+//!
 //! Rejected groups cost one clip and nothing per member. The result is
 //! exactly the brute-force plan of [`crate::policy::select`] (tested),
 //! because only frames that provably cannot enter are skipped.
@@ -33,7 +37,7 @@ use rstar::{AABB, RTree, RTreeObject};
 
 use crate::error::InputError;
 use crate::frustum::{Aabb, Frustum, Plane};
-use crate::overlap::{Estimator, Polytope};
+use crate::overlap::{Estimator, clipped_volume};
 use crate::policy::{ContextPlan, MemoryFrame, Policy, Ranking, SelectedFrame, age, rank_order, select_among};
 
 /// A group's box in the R-tree.
@@ -65,6 +69,9 @@ pub struct SelectionStats {
     pub overlap_evaluations: usize,
     /// Pose-space group bounds computed (one clip each).
     pub group_bounds: usize,
+    /// Of the overlap evaluations, those stopped part-way because the
+    /// clipping proved the frame could not enter the plan.
+    pub cut_short: usize,
 }
 
 /// Side of a group's camera cell, in world units.
@@ -101,16 +108,12 @@ impl Hull {
         }
     }
 
-    /// An upper bound on the overlap of `target` with any member.
-    fn overlap_bound(&self, target: &Frustum) -> f64 {
-        let mut poly = Polytope::from_frustum(target);
-        for plane in &self.planes {
-            poly.clip(plane, 0.0);
-            if poly.is_empty() {
-                return BOUND_MARGIN;
-            }
-        }
-        (poly.volume() / target.volume()).clamp(0.0, 1.0) + BOUND_MARGIN
+    /// An upper bound on the overlap of `target` with any member; once it
+    /// is proved below `floor`, a looser bound that is still below it.
+    fn overlap_bound(&self, target: &Frustum, floor: f64) -> f64 {
+        let floor_volume = (floor - 2.0 * BOUND_MARGIN) * target.volume();
+        let volume = clipped_volume(target, &self.planes, 0.0, floor_volume).unwrap_or(floor_volume);
+        (volume / target.volume()).clamp(0.0, 1.0) + BOUND_MARGIN
     }
 }
 
@@ -304,15 +307,17 @@ impl FrameMemory {
                 let bound = if use_bounds {
                     let coarse = &mut coarse_bounds[group.coarse];
                     if coarse.is_nan() {
+                        // Shared by groups of every age: clipped only as far as the newest frame needs.
                         stats.group_bounds += 1;
-                        *coarse = self.coarse[group.coarse].overlap_bound(target);
+                        *coarse = self.coarse[group.coarse].overlap_bound(target, best.overlap_to_enter(&policy.weights, 0.0));
                     }
                     if best.cannot_admit(upper(*coarse, group.slots[newest])) {
                         continue;
                     }
                     if group.slots.len() >= MIN_GROUP_FOR_BOUND {
                         stats.group_bounds += 1;
-                        group.hull.overlap_bound(target).min(*coarse)
+                        let floor = best.overlap_to_enter(&policy.weights, age(self.frames[group.slots[newest]].time, t_now));
+                        group.hull.overlap_bound(target, floor).min(*coarse)
                     } else {
                         *coarse
                     }
@@ -334,7 +339,16 @@ impl FrameMemory {
                     continue;
                 }
                 stats.overlap_evaluations += 1;
-                best.push(describe(slot, overlap_of(&self.frames[slot])));
+                if use_bounds {
+                    // The clip stops once it proves this frame cannot enter.
+                    let floor = best.overlap_to_enter(&policy.weights, age(self.frames[slot].time, t_now));
+                    match crate::overlap::overlap_unless_below(target, &self.frames[slot].frustum, floor) {
+                        Some(o) => best.push(describe(slot, o)),
+                        None => stats.cut_short += 1,
+                    }
+                } else {
+                    best.push(describe(slot, overlap_of(&self.frames[slot])));
+                }
             }
             // Zero-overlap frames: scores need no geometry, newest is best.
             for &slot in self.by_recency.iter().rev() {
@@ -420,6 +434,15 @@ impl TopN {
     /// since the tie-break may favour them.
     fn cannot_admit(&self, upper: f64) -> bool {
         self.heap.len() == self.n && self.heap.peek().is_some_and(|worst| upper < worst.0.score)
+    }
+
+    /// The least overlap a frame of this age needs to be admitted (−∞ while
+    /// the heap is not full). Score-ranked with a positive overlap weight only.
+    fn overlap_to_enter(&self, weights: &crate::policy::ScoreWeights, age: f64) -> f64 {
+        match self.heap.peek() {
+            Some(worst) if self.heap.len() == self.n => (worst.0.score + weights.recency * age) / weights.overlap,
+            _ => f64::NEG_INFINITY,
+        }
     }
 
     fn push(&mut self, entry: SelectedFrame) {

@@ -1,7 +1,7 @@
 //! Property tests of the overlap estimators over many random pose pairs.
 
 use glam::{DMat3, DVec3, EulerRot};
-use memory::overlap::{MonteCarlo, ViewSamples, WorldMemBall, exact_overlap};
+use memory::overlap::{MonteCarlo, ViewSamples, WorldMemBall, exact_overlap, overlap_unless_below};
 use memory::rng::SplitMix64;
 use memory::{Estimator, Frustum, Intrinsics, Pose};
 
@@ -99,4 +99,28 @@ fn worldmem_quirk_changes_only_pitched_views() {
     let pitched = Frustum::new(Pose::new(DMat3::from_rotation_x(-0.5), DVec3::ZERO).unwrap(), k).unwrap();
     assert_eq!(quirk.overlaps(&level, [&level]), plain.overlaps(&level, [&level]));
     assert!(quirk.overlaps(&level, [&pitched])[0] != plain.overlaps(&level, [&pitched])[0]);
+}
+
+#[test]
+fn a_floor_only_decides_whether_the_exact_overlap_is_returned() {
+    let mut rng = SplitMix64::new(31);
+    let (mut returned, mut ruled_out) = (0, 0);
+    for pair in 0..400 {
+        let q = random_frustum(&mut rng, 25.0);
+        let c = random_frustum(&mut rng, 25.0);
+        let exact = exact_overlap(&q, &c);
+        let floor = rng.next_f64();
+        match overlap_unless_below(&q, &c, floor) {
+            Some(o) => {
+                assert_eq!(o.to_bits(), exact.to_bits(), "pair {pair}: the same number as exact_overlap");
+                assert!(exact >= floor - 1e-9, "pair {pair}: {exact} below the floor {floor} came back");
+                returned += 1;
+            }
+            None => {
+                assert!(exact < floor, "pair {pair}: {exact} ruled out by the floor {floor}");
+                ruled_out += 1;
+            }
+        }
+    }
+    assert!(returned > 20 && ruled_out > 20, "{returned} returned, {ruled_out} ruled out");
 }

@@ -9,87 +9,120 @@
 //! than off by rounding.
 
 use glam::DVec3;
+use smallvec::SmallVec;
 
 use crate::frustum::{FACES, Frustum, Plane};
 
 /// Relative tolerance for "on the plane".
 const ON_PLANE: f64 = 1e-10;
 
-/// A convex polytope as a list of faces, each a convex polygon in cyclic order.
+/// Vertices a polytope keeps inline; a frustum clipped by a frustum or a
+/// group hull stays well under this, and more spills to the heap.
+const INLINE_POINTS: usize = 96;
+const INLINE_FACES: usize = 20;
+/// Points on one cutting plane kept inline (a cap polygon).
+const INLINE_CUT: usize = 24;
+
+type Points = SmallVec<[DVec3; INLINE_POINTS]>;
+/// A face: the range `start..start + len` of [`Polytope::points`].
+type Faces = SmallVec<[(u16, u16); INLINE_FACES]>;
+
+/// A convex polytope as a list of faces, each a convex polygon in cyclic
+/// order, stored flat and inline: a clip allocates nothing and moves nothing
+/// (it writes the other of two buffers and switches to it).
 #[derive(Clone, Debug, Default)]
 pub struct Polytope {
-    faces: Vec<Vec<DVec3>>,
+    buffers: [(Points, Faces); 2],
+    current: usize,
 }
 
 impl Polytope {
     pub fn from_frustum(f: &Frustum) -> Polytope {
         let c = f.corners();
-        Polytope { faces: FACES.iter().map(|face| face.iter().map(|&i| c[i]).collect()).collect() }
+        let points = FACES.iter().flat_map(|face| face.iter().map(|&i| c[i])).collect();
+        let faces = (0..FACES.len() as u16).map(|i| (4 * i, 4)).collect();
+        Polytope { buffers: [(points, faces), Default::default()], current: 0 }
+    }
+
+    fn points(&self) -> &Points {
+        &self.buffers[self.current].0
+    }
+
+    fn faces(&self) -> &Faces {
+        &self.buffers[self.current].1
     }
 
     pub fn is_empty(&self) -> bool {
-        self.faces.is_empty()
+        self.faces().is_empty()
     }
 
-    /// Keeps the part with `plane.distance(p) <= 0`.
-    pub fn clip(&mut self, plane: &Plane, eps: f64) {
-        // Most planes cut nothing: leave without allocating.
-        if self.faces.iter().flatten().all(|&p| plane.distance(p) <= eps) {
-            return;
+    /// Keeps the part with `plane.distance(p) <= eps`; says whether anything was cut away.
+    pub fn clip(&mut self, plane: &Plane, eps: f64) -> bool {
+        // Most planes cut nothing: leave at once.
+        if self.points().iter().all(|&p| plane.distance(p) <= eps) {
+            return false;
         }
-        let mut cut_points: Vec<DVec3> = Vec::new();
+        let mut cut_points: SmallVec<[DVec3; INLINE_CUT]> = SmallVec::new();
         let mut face_on_plane = false;
-        let mut clipped_faces = Vec::with_capacity(self.faces.len() + 1);
-        let mut d: Vec<f64> = Vec::new();
-        for face in std::mem::take(&mut self.faces) {
+        let [a, b] = &mut self.buffers;
+        let ((from_points, from_faces), (points, faces)) = if self.current == 0 { (&*a, b) } else { (&*b, a) };
+        points.clear();
+        faces.clear();
+        let mut d: SmallVec<[f64; INLINE_CUT]> = SmallVec::new();
+        for &(start, len) in from_faces {
+            let face = &from_points[start as usize..(start + len) as usize];
             d.clear();
             d.extend(face.iter().map(|&p| plane.distance(p)));
+            let start = points.len();
             if d.iter().all(|&x| x <= eps) {
                 if d.iter().all(|&x| x.abs() <= eps) {
                     face_on_plane = true;
                 }
                 cut_points.extend(face.iter().zip(&d).filter(|(_, x)| x.abs() <= eps).map(|(p, _)| *p));
-                clipped_faces.push(face);
-                continue;
-            }
-            let mut out = Vec::with_capacity(face.len() + 1);
-            for i in 0..face.len() {
-                let j = (i + 1) % face.len();
-                let (p, q, dp, dq) = (face[i], face[j], d[i], d[j]);
-                if dp <= eps {
-                    out.push(p);
-                    if dp.abs() <= eps {
-                        cut_points.push(p);
+                points.extend_from_slice(face);
+            } else {
+                for i in 0..face.len() {
+                    let j = (i + 1) % face.len();
+                    let (p, q, dp, dq) = (face[i], face[j], d[i], d[j]);
+                    if dp <= eps {
+                        points.push(p);
+                        if dp.abs() <= eps {
+                            cut_points.push(p);
+                        }
+                    }
+                    // A strict crossing: one end clearly inside, the other clearly outside.
+                    if (dp < -eps && dq > eps) || (dp > eps && dq < -eps) {
+                        let x = p + (q - p) * (dp / (dp - dq));
+                        points.push(x);
+                        cut_points.push(x);
                     }
                 }
-                // A strict crossing: one end clearly inside, the other clearly outside.
-                if (dp < -eps && dq > eps) || (dp > eps && dq < -eps) {
-                    let x = p + (q - p) * (dp / (dp - dq));
-                    out.push(x);
-                    cut_points.push(x);
-                }
             }
-            if out.len() >= 3 {
-                clipped_faces.push(out);
-            }
+            push_face(points, faces, start);
         }
         if !face_on_plane {
-            if let Some(cap) = cap_polygon(cut_points, plane.normal, eps) {
-                clipped_faces.push(cap);
-            }
+            let start = points.len();
+            cap_polygon(&cut_points, plane.normal, eps, points);
+            push_face(points, faces, start);
         }
-        self.faces = if clipped_faces.len() >= 4 { clipped_faces } else { Vec::new() };
+        if faces.len() < 4 {
+            points.clear();
+            faces.clear();
+        }
+        self.current = 1 - self.current;
+        true
     }
 
     /// Volume by summing pyramids from an interior point to every face.
     pub fn volume(&self) -> f64 {
-        let n: usize = self.faces.iter().map(Vec::len).sum();
-        if n == 0 {
+        let points = self.points();
+        if points.is_empty() {
             return 0.0;
         }
-        let reference = self.faces.iter().flatten().sum::<DVec3>() / n as f64;
+        let reference = points.iter().sum::<DVec3>() / points.len() as f64;
         let mut volume = 0.0;
-        for face in &self.faces {
+        for &(start, len) in self.faces() {
+            let face = &points[start as usize..(start + len) as usize];
             let p0 = face[0];
             let mut area2 = DVec3::ZERO;
             for w in face.windows(2).skip(1) {
@@ -104,22 +137,34 @@ impl Polytope {
     }
 }
 
-/// Orders the points on a cutting plane into a convex polygon, or `None` if
-/// fewer than three distinct points remain.
-fn cap_polygon(mut points: Vec<DVec3>, normal: DVec3, eps: f64) -> Option<Vec<DVec3>> {
-    let mut unique: Vec<DVec3> = Vec::with_capacity(points.len());
-    for p in points.drain(..) {
+/// Ends the face whose points begin at `start`: kept with three points or
+/// more, else its points are dropped.
+fn push_face(points: &mut Points, faces: &mut Faces, start: usize) {
+    let len = points.len() - start;
+    if len >= 3 {
+        faces.push((start as u16, len as u16));
+    } else {
+        points.truncate(start);
+    }
+}
+
+/// Appends the points on a cutting plane to `out`, ordered into a convex
+/// polygon (duplicates within `eps` dropped); fewer than three distinct
+/// points make no polygon, which the caller drops.
+fn cap_polygon(points: &[DVec3], normal: DVec3, eps: f64, out: &mut Points) {
+    let mut unique: SmallVec<[DVec3; INLINE_CUT]> = SmallVec::new();
+    for &p in points {
         if unique.iter().all(|q| (*q - p).length() > eps) {
             unique.push(p);
         }
     }
     if unique.len() < 3 {
-        return None;
+        return;
     }
     let centre = unique.iter().sum::<DVec3>() / unique.len() as f64;
     let u = normal.any_orthonormal_vector();
     let v = normal.cross(u);
-    let mut keyed: Vec<(f64, DVec3)> = unique
+    let mut keyed: SmallVec<[(f64, DVec3); INLINE_CUT]> = unique
         .into_iter()
         .map(|p| {
             let r = p - centre;
@@ -127,7 +172,7 @@ fn cap_polygon(mut points: Vec<DVec3>, normal: DVec3, eps: f64) -> Option<Vec<DV
         })
         .collect();
     keyed.sort_by(|a, b| a.0.total_cmp(&b.0));
-    Some(keyed.into_iter().map(|(_, p)| p).collect())
+    out.extend(keyed.into_iter().map(|(_, p)| p));
 }
 
 /// A number in [0, 4) that grows with the angle of `(x, y)` from the x axis,
@@ -148,22 +193,66 @@ fn pseudo_angle(x: f64, y: f64) -> f64 {
 
 /// `Vol(candidate ∩ query) / Vol(query)`, exactly (up to f64 rounding).
 pub fn exact_overlap(query: &Frustum, candidate: &Frustum) -> f64 {
+    overlap_unless_below(query, candidate, f64::NEG_INFINITY).expect("no floor rules any overlap out")
+}
+
+/// [`exact_overlap`] (the same number, computed the same way), or `None` as
+/// soon as the clipping proves the overlap is below `floor`: each clip only
+/// removes volume, so a partly clipped polytope already bounds the overlap,
+/// and the planes left are skipped. Selection asks with the overlap a frame
+/// would need to enter the plan, so most frames that cannot enter cost a
+/// fraction of a full clip.
+///
+/// The candidate's planes are applied deepest cut first (by how far the
+/// query's corners lie beyond each), so the bound falls fastest; planes
+/// that leave every corner inside cut nothing and are skipped. The order
+/// depends on the two frusta only, so every caller gets the same number.
+pub fn overlap_unless_below(query: &Frustum, candidate: &Frustum, floor: f64) -> Option<f64> {
+    let zero = || (0.0 >= floor - BELOW_MARGIN).then_some(0.0);
     if !query.aabb().intersects(candidate.aabb()) {
-        return 0.0;
+        return zero();
     }
     let eps = ON_PLANE * query.scale().max(candidate.scale());
-    if query.corners().iter().all(|&c| candidate.contains(c, eps)) {
-        return 1.0;
-    }
-    let mut poly = Polytope::from_frustum(query);
-    for plane in candidate.planes() {
-        poly.clip(plane, eps);
-        if poly.is_empty() {
-            return 0.0;
+    // Rounding in a partial volume must never reject a frame at its floor.
+    let volume = clipped_volume(query, candidate.planes(), eps, (floor - BELOW_MARGIN) * query.volume())?;
+    let overlap = (volume / query.volume()).clamp(0.0, 1.0);
+    if overlap == 0.0 { zero() } else { (overlap >= floor - BELOW_MARGIN).then_some(overlap) }
+}
+
+/// The volume of `query` inside every plane of `planes` (normals outward,
+/// tolerance `eps`), or `None` once clipping proves it below `floor_volume`.
+/// Planes are applied deepest cut first (by how far the query's corners lie
+/// beyond each), so the volume falls fastest; a plane that leaves every
+/// corner inside cuts nothing and is skipped (the query is their hull). The
+/// order depends on the inputs only, so every caller gets the same number.
+pub fn clipped_volume(query: &Frustum, planes: &[Plane], eps: f64, floor_volume: f64) -> Option<f64> {
+    let mut cutting: SmallVec<[(f64, usize); 12]> = SmallVec::new();
+    for (i, plane) in planes.iter().enumerate() {
+        let depth: f64 = query.corners().iter().map(|&c| plane.distance(c)).filter(|&d| d > eps).sum();
+        if depth > 0.0 {
+            cutting.push((depth, i));
         }
     }
-    (poly.volume() / query.volume()).clamp(0.0, 1.0)
+    if cutting.is_empty() {
+        return Some(query.volume());
+    }
+    cutting.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
+    let mut poly = Polytope::from_frustum(query);
+    for (n, &(_, i)) in cutting.iter().enumerate() {
+        let cut = poly.clip(&planes[i], eps);
+        if poly.is_empty() {
+            return Some(0.0);
+        }
+        if cut && floor_volume > 0.0 && n + 1 < cutting.len() && poly.volume() < floor_volume {
+            return None;
+        }
+    }
+    Some(poly.volume())
 }
+
+/// Slack below a floor within which [`overlap_unless_below`] still computes
+/// the exact overlap (far above the clipper's rounding).
+const BELOW_MARGIN: f64 = 1e-9;
 
 #[cfg(test)]
 mod tests {
