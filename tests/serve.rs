@@ -466,6 +466,81 @@ unsafe extern "C" {
     fn libc_geteuid() -> u32;
 }
 
+/// Two replicas on one PostgreSQL, sharing nothing else: 16 sessions made on
+/// either are stepped concurrently, each alternating between them; every
+/// acknowledged frame reads back in order and byte for byte from both; a
+/// retried step carrying its expected index makes no second frame; steps of
+/// one session racing on both replicas each take a distinct index (the
+/// database hands each out once: the loser gets 409); a deletion on one
+/// replica is seen on the other.
+#[test]
+fn two_replicas_on_one_database_share_the_sessions() {
+    let pg = PgCluster::start("replicas");
+    let (a, b) = (Server::start(&pg.url(), &[]), Server::start(&pg.url(), &[]));
+    let replicas = [&a, &b];
+    let ids: Vec<u64> = (0..16)
+        .map(|n| {
+            let (code, c) = replicas[n % 2].post("/v1/sessions", &json!({ "synthetic": { "seed": n } }));
+            assert_eq!(code, 201, "{c}");
+            c["session"].as_u64().unwrap()
+        })
+        .collect();
+    std::thread::scope(|scope| {
+        for (n, &id) in ids.iter().enumerate() {
+            scope.spawn(move || {
+                for k in 1..=4u64 {
+                    let s = replicas[(n + k as usize) % 2];
+                    let (code, r) = s.post(&format!("/v1/sessions/{id}/step"), &json!({ "action": { "forward": true }, "expected_index": k }));
+                    assert_eq!((code, r["index"].as_u64()), (200, Some(k)), "session {id}, step {k}: {r}");
+                }
+            });
+        }
+    });
+    for &id in &ids {
+        for s in replicas {
+            assert_eq!(s.get(&format!("/v1/sessions/{id}")).1["frames"].as_u64(), Some(5), "session {id} on {}", s.url);
+        }
+        for i in 0..5 {
+            let (meta_a, meta_b) = (a.get(&format!("/v1/sessions/{id}/frames/{i}")).1, b.get(&format!("/v1/sessions/{id}/frames/{i}")).1);
+            assert_eq!(meta_a, meta_b, "session {id} frame {i}");
+            assert_eq!(meta_a["time"].as_u64(), Some(i), "in order: {meta_a}");
+            assert_eq!(a.bytes(&format!("/v1/sessions/{id}/frames/{i}/image")), b.bytes(&format!("/v1/sessions/{id}/frames/{i}/image")));
+        }
+    }
+    // A client that lost the answer to step 4 sends it again, to the other replica.
+    let id = ids[0];
+    let (code, r) = b.post(&format!("/v1/sessions/{id}/step"), &json!({ "action": { "forward": true }, "expected_index": 4 }));
+    assert_eq!((code, r["error"]["field"].as_str()), (409, Some("expected_index")), "{r}");
+    // Steps of one session racing on both replicas, without expected indices.
+    let answers: Vec<(u16, Value)> = std::thread::scope(|scope| {
+        let racers: Vec<_> = (0..8)
+            .map(|n| scope.spawn(move || replicas[n % 2].post(&format!("/v1/sessions/{id}/step"), &json!({ "action": { "yaw_deg": 5 } }))))
+            .collect();
+        racers.into_iter().map(|r| r.join().unwrap()).collect()
+    });
+    let mut taken: Vec<u64> = Vec::new();
+    for (code, r) in &answers {
+        match code {
+            200 => taken.push(r["index"].as_u64().unwrap()),
+            409 => assert_eq!(r["error"]["field"].as_str(), Some("session"), "{r}"),
+            _ => panic!("a racing step got {code}: {r}"),
+        }
+    }
+    taken.sort();
+    let codes: Vec<u16> = answers.iter().map(|(c, _)| *c).collect();
+    assert_eq!(taken, (5..5 + taken.len() as u64).collect::<Vec<_>>(), "each acknowledged step its own index, none skipped (answers {codes:?})");
+    for s in replicas {
+        assert_eq!(s.get(&format!("/v1/sessions/{id}")).1["frames"].as_u64(), Some(5 + taken.len() as u64));
+    }
+    let (code, _) = answer(ureq::delete(&format!("{}/v1/sessions/{id}", a.url)).call());
+    assert_eq!(code, 204);
+    let (code, r) = b.post(&format!("/v1/sessions/{id}/step"), &json!({ "action": {} }));
+    assert_eq!((code, r["error"]["field"].as_str()), (404, Some("session")), "deleted on the other replica: {r}");
+    let metrics = String::from_utf8(a.bytes("/metrics")).unwrap();
+    let caught_up = metrics.lines().find_map(|l| l.strip_prefix("worldpack_caught_up_frames_total ")).and_then(|v| v.parse::<u64>().ok());
+    assert!(caught_up.is_some_and(|n| n > 0), "replica a read frames replica b wrote: {metrics}");
+}
+
 /// A synthetic session's generated and observed frames (latents, images,
 /// depth, poses) on PostgreSQL, back after a SIGKILL and a restart.
 #[test]

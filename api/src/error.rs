@@ -63,6 +63,7 @@ impl From<crate::store::StoreError> for ApiError {
     fn from(e: crate::store::StoreError) -> Self {
         match e {
             crate::store::StoreError::Unavailable(_) => ApiError::new(StatusCode::SERVICE_UNAVAILABLE, "store", e.to_string()),
+            crate::store::StoreError::Taken { .. } => ApiError::new(StatusCode::CONFLICT, "session", e.to_string()),
             other => ApiError::internal(other),
         }
     }

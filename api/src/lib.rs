@@ -94,6 +94,10 @@ pub(crate) struct Metrics {
     pub selects: AtomicU64,
     pub sessions_created: AtomicU64,
     pub step_micros: AtomicU64,
+    /// Reads of a shared store's new frames before a request (see `routes::catch_up`).
+    pub catch_ups: AtomicU64,
+    pub catch_up_micros: AtomicU64,
+    pub caught_up_frames: AtomicU64,
 }
 
 pub(crate) struct AppState {

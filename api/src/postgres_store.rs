@@ -95,7 +95,7 @@ impl PgStore {
         let mut txn = client.transaction().map_err(db)?;
         let record = serde_json::to_string(record).map_err(err)?;
         let session: i64 = txn.query_one("INSERT INTO sessions (record) VALUES ($1::text::jsonb) RETURNING id", &[&record]).map_err(db)?.get(0);
-        insert_frame(&mut txn, session, 0, first)?;
+        insert_frame(&mut txn, session, 0, first)?; // a new session: its frame 0 is free
         txn.commit().map_err(db)?;
         Ok(session as u64)
     }
@@ -103,7 +103,9 @@ impl PgStore {
     pub fn put_frame(&self, session: u64, index: u64, frame: &FrameRecord) -> Result<(), StoreError> {
         let mut client = self.client()?;
         let mut txn = client.transaction().map_err(db)?;
-        insert_frame(&mut txn, id(session)?, id(index)?, frame)?;
+        if !insert_frame(&mut txn, id(session)?, id(index)?, frame)? {
+            return Err(StoreError::Taken { session, index });
+        }
         txn.commit().map_err(db)
     }
 
@@ -121,10 +123,18 @@ impl PgStore {
             .collect()
     }
 
-    pub fn frames(&self, session: u64) -> Result<Vec<FrameRecord>, StoreError> {
+    pub fn session(&self, session: u64) -> Result<Option<SessionRecord>, StoreError> {
+        let row = self.client()?.query_opt("SELECT record::text FROM sessions WHERE id = $1", &[&id(session)?]).map_err(db)?;
+        row.map(|r| serde_json::from_str(&r.get::<_, String>(0)).map_err(err)).transpose()
+    }
+
+    pub fn frames_from(&self, session: u64, start: u64) -> Result<Vec<FrameRecord>, StoreError> {
         let rows = self
             .client()?
-            .query("SELECT meta::text, latent, png, depth_png16 FROM frames WHERE session = $1 ORDER BY idx", &[&id(session)?])
+            .query(
+                "SELECT meta::text, latent, png, depth_png16 FROM frames WHERE session = $1 AND idx >= $2 ORDER BY idx",
+                &[&id(session)?, &id(start)?],
+            )
             .map_err(db)?;
         rows.iter().map(frame_of).collect()
     }
@@ -138,14 +148,17 @@ impl PgStore {
     }
 }
 
-/// Writes frame `index` of `session` (replacing one stored there before, as the redb store does).
-fn insert_frame(txn: &mut postgres::Transaction, session: i64, index: i64, f: &FrameRecord) -> Result<(), StoreError> {
+/// Writes frame `index` of `session` unless it is stored already (then
+/// false): the primary key makes the database hand each index out once, so
+/// two replicas stepping one session cannot both write the same frame.
+fn insert_frame(txn: &mut postgres::Transaction, session: i64, index: i64, f: &FrameRecord) -> Result<bool, StoreError> {
     let meta = serde_json::to_string(&f.meta).map_err(err)?;
-    txn.execute(
-        "INSERT INTO frames (session, idx, meta, latent, png, depth_png16) VALUES ($1, $2, $3::text::jsonb, $4, $5, $6)
-         ON CONFLICT (session, idx) DO UPDATE SET meta = EXCLUDED.meta, latent = EXCLUDED.latent, png = EXCLUDED.png, depth_png16 = EXCLUDED.depth_png16",
-        &[&session, &index, &meta, &latent_bytes(&f.latent), &f.png, &f.depth_png16],
-    )
-    .map_err(db)?;
-    Ok(())
+    let written = txn
+        .execute(
+            "INSERT INTO frames (session, idx, meta, latent, png, depth_png16) VALUES ($1, $2, $3::text::jsonb, $4, $5, $6)
+             ON CONFLICT (session, idx) DO NOTHING",
+            &[&session, &index, &meta, &latent_bytes(&f.latent), &f.png, &f.depth_png16],
+        )
+        .map_err(db)?;
+    Ok(written == 1)
 }

@@ -115,7 +115,40 @@ fn check_id(field: &str, id: u64) -> Res<u64> {
 }
 
 fn slot(st: &AppState, id: u64) -> Res<Arc<Slot>> {
-    st.sessions.read().unwrap().get(&id).cloned().ok_or_else(|| ApiError::not_found("session", format!("no session {id}")))
+    if let Some(slot) = st.sessions.read().unwrap().get(&id).cloned() {
+        return Ok(slot);
+    }
+    let missing = || ApiError::not_found("session", format!("no session {id}"));
+    if !st.engine.store.shared() {
+        return Err(missing());
+    }
+    // Another server on the same database may have made it; its frames are read by `lock`.
+    let record = tokio::task::block_in_place(|| st.engine.store.session(id))?.ok_or_else(missing)?;
+    let world = record.world_seed.map(|seed| st.engine.world(seed));
+    let session = Session::restore(id, record, Vec::new(), world)?;
+    let slot = Arc::new(Slot { session: Arc::new(tokio::sync::Mutex::new(session)), waiting: AtomicUsize::new(0) });
+    Ok(st.sessions.write().unwrap().entry(id).or_insert(slot).clone())
+}
+
+/// On a store other servers write too: indexes the frames stored since this
+/// server last saw the session, or marks it deleted when it is gone.
+fn catch_up(st: &AppState, s: &mut Session) -> Res<()> {
+    if !st.engine.store.shared() {
+        return Ok(());
+    }
+    let started = std::time::Instant::now();
+    tokio::task::block_in_place(|| {
+        if st.engine.store.session(s.id)?.is_none() {
+            s.deleted = true;
+            return Ok(());
+        }
+        let new = st.engine.store.frames_from(s.id, s.frames.len() as u64)?;
+        st.metrics.caught_up_frames.fetch_add(new.len() as u64, Ordering::Relaxed);
+        s.append_stored(new)
+    })?;
+    st.metrics.catch_up_micros.fetch_add(started.elapsed().as_micros() as u64, Ordering::Relaxed);
+    st.metrics.catch_ups.fetch_add(1, Ordering::Relaxed);
+    Ok(())
 }
 
 /// Waits for the session, refusing with 429 when too many requests queue on it.
@@ -125,9 +158,13 @@ async fn lock(st: &AppState, slot: &Arc<Slot>) -> Res<tokio::sync::OwnedMutexGua
         slot.waiting.fetch_sub(1, Ordering::SeqCst);
         return Err(ApiError::new(StatusCode::TOO_MANY_REQUESTS, "session", format!("{queued} requests already queued on this session")));
     }
-    let guard = slot.session.clone().lock_owned().await;
+    let mut guard = slot.session.clone().lock_owned().await;
     slot.waiting.fetch_sub(1, Ordering::SeqCst);
+    if !guard.deleted {
+        catch_up(st, &mut guard)?;
+    }
     if guard.deleted {
+        st.sessions.write().unwrap().remove(&guard.id);
         return Err(ApiError::not_found("session", format!("session {} was deleted", guard.id)));
     }
     Ok(guard)
@@ -178,7 +215,7 @@ pub async fn health(State(st): St) -> Json<Health> {
     })
 }
 
-#[utoipa::path(get, path = "/metrics", summary = "Prometheus counters: steps, observes, selects, sessions, step seconds",
+#[utoipa::path(get, path = "/metrics", summary = "Prometheus counters: steps, observes, selects, sessions, step seconds, shared-store catch-ups",
     responses((status = 200, description = "Prometheus text exposition format", body = String, content_type = "text/plain")))]
 pub async fn metrics(State(st): St) -> Response {
     let m = &st.metrics;
@@ -192,6 +229,9 @@ pub async fn metrics(State(st): St) -> Response {
          # TYPE worldpack_selects_total counter\nworldpack_selects_total {}\n\
          # TYPE worldpack_sessions_created_total counter\nworldpack_sessions_created_total {}\n\
          # TYPE worldpack_step_seconds_sum counter\nworldpack_step_seconds_sum {}\n\
+         # TYPE worldpack_catch_ups_total counter\nworldpack_catch_ups_total {}\n\
+         # TYPE worldpack_catch_up_seconds_sum counter\nworldpack_catch_up_seconds_sum {}\n\
+         # TYPE worldpack_caught_up_frames_total counter\nworldpack_caught_up_frames_total {}\n\
          # TYPE worldpack_sessions gauge\nworldpack_sessions {}\n",
         g(&m.steps),
         batched.0,
@@ -200,6 +240,9 @@ pub async fn metrics(State(st): St) -> Response {
         g(&m.selects),
         g(&m.sessions_created),
         g(&m.step_micros) as f64 / 1e6,
+        g(&m.catch_ups),
+        g(&m.catch_up_micros) as f64 / 1e6,
+        g(&m.caught_up_frames),
         st.sessions.read().unwrap().len()
     );
     ([(header::CONTENT_TYPE, "text/plain; version=0.0.4")], text).into_response()

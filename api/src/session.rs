@@ -68,7 +68,8 @@ pub fn pose_of(meta: &FrameMeta) -> Result<Pose, ApiError> {
 }
 
 impl Session {
-    /// Rebuilds a session from its stored record and frames (server start).
+    /// Rebuilds a session from its stored record and frames (server start,
+    /// or a session another server made on a shared store).
     pub fn restore(id: u64, record: SessionRecord, frames: Vec<FrameRecord>, world: Option<Arc<World>>) -> Result<Session, ApiError> {
         let policy = policy_of(&record.policy)?;
         let mut s = Session {
@@ -84,17 +85,25 @@ impl Session {
             depth_frames: HashMap::new(),
             depth_grids: HashMap::new(),
         };
-        for (index, f) in frames.into_iter().enumerate() {
+        s.append_stored(frames)?;
+        Ok(s)
+    }
+
+    /// Indexes stored frames that follow the ones indexed already (frames
+    /// another server wrote to a shared store, or all of them at a restore).
+    pub fn append_stored(&mut self, frames: Vec<FrameRecord>) -> Result<(), ApiError> {
+        for f in frames {
+            let index = self.frames.len() as u64;
             let generated = f.meta.source == GENERATED;
-            s.push(f.meta.time, pose_of(&f.meta)?, f.latent, f.meta.player.map(player_from), generated)?;
+            self.push(f.meta.time, pose_of(&f.meta)?, f.latent, f.meta.player.map(player_from), generated)?;
             if !f.depth_png16.is_empty() {
                 // Both were checked when they arrived; a stored frame that no longer decodes is the store's fault.
                 let (rgb, w, h) = world::picture::decode_rgb(&f.png).map_err(ApiError::internal)?;
                 let (depth, _, _) = world::picture::decode_depth_png16(&f.depth_png16).map_err(ApiError::internal)?;
-                s.add_depth(index as u64, rgb, w, h, depth)?;
+                self.add_depth(index, rgb, w, h, depth)?;
             }
         }
-        Ok(s)
+        Ok(())
     }
 
     pub fn intrinsics(&self) -> &Intrinsics {

@@ -24,6 +24,10 @@ pub enum StoreError {
     /// The database cannot be reached (PostgreSQL down or the connection lost): worth retrying.
     #[error("store unavailable: {0}")]
     Unavailable(String),
+    /// The frame index is stored already: another request (or another
+    /// server on the same database) wrote it first. Frames are never replaced.
+    #[error("frame {index} of session {session} is already stored: the session moved on (another request or replica wrote it first)")]
+    Taken { session: u64, index: u64 },
 }
 
 pub(crate) fn err(e: impl std::fmt::Display) -> StoreError {
@@ -125,8 +129,25 @@ impl Store {
         each_backend!(self, s => s.create_session(record, first))
     }
 
+    /// Stores frame `index`, once: an index stored before is [`StoreError::Taken`].
     pub fn put_frame(&self, session: u64, index: u64, frame: &FrameRecord) -> Result<(), StoreError> {
         each_backend!(self, s => s.put_frame(session, index, frame))
+    }
+
+    /// Whether other servers may write this store too (PostgreSQL): a
+    /// server then reads a session's new frames before each request on it.
+    pub fn shared(&self) -> bool {
+        matches!(self, Store::Postgres(_))
+    }
+
+    /// One session's record; `None` when there is none (never made, or deleted).
+    pub fn session(&self, id: u64) -> Result<Option<SessionRecord>, StoreError> {
+        each_backend!(self, s => s.session(id))
+    }
+
+    /// A session's frames from index `start` on, in index order.
+    pub fn frames_from(&self, session: u64, start: u64) -> Result<Vec<FrameRecord>, StoreError> {
+        each_backend!(self, s => s.frames_from(session, start))
     }
 
     /// Removes a session and its frames; false when there was none.
@@ -140,7 +161,7 @@ impl Store {
 
     /// Every frame of a session, in index order.
     pub fn frames(&self, session: u64) -> Result<Vec<FrameRecord>, StoreError> {
-        each_backend!(self, s => s.frames(session))
+        self.frames_from(session, 0)
     }
 
     pub fn frame(&self, session: u64, index: u64) -> Result<Option<FrameRecord>, StoreError> {
@@ -189,9 +210,19 @@ impl RedbStore {
 
     pub fn put_frame(&self, session: u64, index: u64, frame: &FrameRecord) -> Result<(), StoreError> {
         self.write(|txn| {
-            txn.open_table(FRAMES).map_err(err)?.insert((session, index), frame.encode().as_slice()).map_err(err)?;
+            let mut frames = txn.open_table(FRAMES).map_err(err)?;
+            if frames.get((session, index)).map_err(err)?.is_some() {
+                return Err(StoreError::Taken { session, index });
+            }
+            frames.insert((session, index), frame.encode().as_slice()).map_err(err)?;
             Ok(())
         })
+    }
+
+    pub fn session(&self, id: u64) -> Result<Option<SessionRecord>, StoreError> {
+        let txn = self.db.begin_read().map_err(err)?;
+        let table = txn.open_table(SESSIONS).map_err(err)?;
+        table.get(id).map_err(err)?.map(|v| serde_json::from_slice(v.value()).map_err(err)).transpose()
     }
 
     /// Removes a session and its frames; false when there was none.
@@ -215,12 +246,11 @@ impl RedbStore {
         Ok(out)
     }
 
-    /// Every frame of a session, in index order.
-    pub fn frames(&self, session: u64) -> Result<Vec<FrameRecord>, StoreError> {
+    pub fn frames_from(&self, session: u64, start: u64) -> Result<Vec<FrameRecord>, StoreError> {
         let txn = self.db.begin_read().map_err(err)?;
         let table = txn.open_table(FRAMES).map_err(err)?;
         let mut out = Vec::new();
-        for row in table.range((session, 0)..=(session, u64::MAX)).map_err(err)? {
+        for row in table.range((session, start)..=(session, u64::MAX)).map_err(err)? {
             let (_, v) = row.map_err(err)?;
             out.push(FrameRecord::decode(v.value())?);
         }
