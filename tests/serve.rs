@@ -539,6 +539,10 @@ fn two_replicas_on_one_database_share_the_sessions() {
     let metrics = String::from_utf8(a.bytes("/metrics")).unwrap();
     let caught_up = metrics.lines().find_map(|l| l.strip_prefix("worldpack_caught_up_frames_total ")).and_then(|v| v.parse::<u64>().ok());
     assert!(caught_up.is_some_and(|n| n > 0), "replica a read frames replica b wrote: {metrics}");
+    // What a catch-up costs (reported, not asserted: a test is no benchmark).
+    let value = |name: &str| metrics.lines().find_map(|l| l.strip_prefix(name)).and_then(|v| v.trim().parse::<f64>().ok()).unwrap_or(f64::NAN);
+    let (count, seconds) = (value("worldpack_catch_ups_total "), value("worldpack_catch_up_seconds_sum "));
+    eprintln!("replica a: {count} catch-ups, {:.2} ms each on average, {} frames read", 1e3 * seconds / count, caught_up.unwrap());
 }
 
 /// A synthetic session's generated and observed frames (latents, images,
