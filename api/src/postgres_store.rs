@@ -25,9 +25,14 @@ const MIGRATIONS: &[&str] = &["
         PRIMARY KEY (session, idx)
     );"];
 
+/// Connections per server: requests on different sessions (a step's commit,
+/// another's catch-up) need not wait for one another's round trips.
+const CONNECTIONS: usize = 4;
+
 pub struct PgStore {
     url: String,
-    client: Mutex<Client>,
+    clients: Vec<Mutex<Client>>,
+    next: std::sync::atomic::AtomicUsize,
 }
 
 /// A query's error: `Unavailable` when the connection is gone, else `Failed`.
@@ -76,14 +81,25 @@ impl PgStore {
             txn.execute("INSERT INTO schema_version (version) VALUES ($1)", &[&(i as i32 + 1)]).map_err(db)?;
         }
         txn.commit().map_err(db)?;
-        Ok(PgStore { url: url.to_string(), client: Mutex::new(client) })
+        let mut clients = vec![Mutex::new(client)];
+        for _ in 1..CONNECTIONS {
+            clients.push(Mutex::new(Client::connect(url, NoTls).map_err(|e| StoreError::Unavailable(format!("{url}: {e}")))?));
+        }
+        Ok(PgStore { url: url.to_string(), clients, next: Default::default() })
     }
 
-    /// The connection, opened again when the last one was lost (the database
-    /// restarted): requests fail with `Unavailable` while it is down and
-    /// succeed again once it is back.
+    /// A free connection (else the next in turn), opened again when it was
+    /// lost (the database restarted): requests fail with `Unavailable` while
+    /// it is down and succeed again once it is back.
     fn client(&self) -> Result<std::sync::MutexGuard<'_, Client>, StoreError> {
-        let mut client = self.client.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
+        let free = self.clients.iter().find_map(|c| c.try_lock().ok());
+        let mut client = match free {
+            Some(client) => client,
+            None => {
+                let turn = self.next.fetch_add(1, std::sync::atomic::Ordering::Relaxed) % self.clients.len();
+                self.clients[turn].lock().unwrap_or_else(|poisoned| poisoned.into_inner())
+            }
+        };
         if client.is_closed() {
             *client = Client::connect(&self.url, NoTls).map_err(|e| StoreError::Unavailable(format!("{}: {e}", self.url)))?;
         }
