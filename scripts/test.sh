@@ -13,6 +13,15 @@ echo "==> installing Python test requirements"
 .venv/bin/python -m pip install --disable-pip-version-check -q -r tests/requirements.txt
 .venv/bin/python -m pip install --disable-pip-version-check -q -e 'clients/python[gym]'
 
+if [ ! -x .venv-triton/bin/python ]; then
+  # The Triton tests start PyPI's tritonserver (nvidia-pytriton). Its Python-backend
+  # stub links Debian's libpython3.11, so this venv is made with Debian's python3.11;
+  # pytriton needs numpy < 2, so it is a venv of its own.
+  echo "==> creating the Triton venv in .venv-triton"
+  /usr/bin/python3.11 -m venv .venv-triton
+fi
+.venv-triton/bin/python -m pip install --disable-pip-version-check -q -r serving/triton/requirements.txt
+
 if ! command -v chromium >/dev/null; then
   # The viewer test drives the page in Debian's Chromium (tests/test_viewer.py).
   echo "==> installing Debian's chromium for the viewer test"

@@ -43,6 +43,11 @@ enum Command {
         /// Run without a model: observe and select work, step answers 409.
         #[arg(long, conflicts_with = "model")]
         memory_only: bool,
+        /// Where the model's graphs run: in this process (default), or `triton://HOST:PORT`, a Triton
+        /// Inference Server's HTTP port serving the model's graphs (serving/triton/host.py;
+        /// docs/deployment.md). The manifest is still read from --model.
+        #[arg(long, conflicts_with = "memory_only")]
+        model_backend: Option<String>,
         /// The store file (created when missing; sessions in it are restored).
         #[arg(long, default_value = "data/worldpack.redb")]
         store: PathBuf,
@@ -360,11 +365,12 @@ fn main() -> ExitCode {
                 report(sim::render_one(&out, seed, pose, biome, size, probe), "sim render")
             }
         },
-        Command::Serve { model, memory_only, store, addr, provider, threads, steps, method, policy, max_queue, max_inflight, overlay_warp, covisible, batch_window_ms, batch_max } => {
+        Command::Serve { model, memory_only, model_backend, store, addr, provider, threads, steps, method, policy, max_queue, max_inflight, overlay_warp, covisible, batch_window_ms, batch_max } => {
             let config = api::Config {
                 addr,
                 store,
                 model: (!memory_only).then_some(model),
+                model_backend,
                 runtime: model::RuntimeOptions { provider, threads },
                 steps: steps as usize,
                 method,

@@ -476,7 +476,26 @@ unsafe extern "C" {
 #[test]
 fn two_replicas_on_one_database_share_the_sessions() {
     let pg = PgCluster::start("replicas");
-    let (a, b) = (Server::start(&pg.url(), &[]), Server::start(&pg.url(), &[]));
+    replicas_share_the_sessions(&pg, &[]);
+}
+
+/// The replica test again, both replicas' model on one Triton server: Triton
+/// sees every denoiser call and its dynamic batcher gathers some of them.
+#[test]
+fn two_replicas_on_one_database_and_one_triton_share_the_sessions() {
+    let pg = PgCluster::start("replicas-triton");
+    let triton = TritonHost::start("fixtures/small", None);
+    replicas_share_the_sessions(&pg, &["--model-backend", &triton.backend()]);
+    let requests = triton.metric("nv_inference_request_success", "small-denoiser-worldpack");
+    let executions = triton.metric("nv_inference_exec_count", "small-denoiser-worldpack");
+    // 64 alternating steps, a retry and 8 racing steps, two sampler steps each.
+    assert!(requests >= 2.0 * 64.0, "Triton saw {requests} denoiser calls");
+    assert!(executions < requests, "Triton batched none of {requests} concurrent calls ({executions} executions)");
+    eprintln!("Triton: {requests} denoiser calls in {executions} batched executions");
+}
+
+fn replicas_share_the_sessions(pg: &PgCluster, extra: &[&str]) {
+    let (a, b) = (Server::start(&pg.url(), extra), Server::start(&pg.url(), extra));
     let replicas = [&a, &b];
     let ids: Vec<u64> = (0..16)
         .map(|n| {
@@ -796,5 +815,164 @@ fn batched_steps_make_the_frames_a_lone_step_makes() {
     for r in &frames {
         let worst = pixels(r).iter().zip(&lone).map(|(a, b)| a.abs_diff(*b)).max().unwrap();
         assert!(worst <= 1, "a batched frame differs from the lone one by {worst}/255");
+    }
+}
+
+/// `serving/triton/host.py`: a real Triton Inference Server (PyPI's
+/// `tritonserver`, in `.venv-triton`, which scripts/test.sh makes) hosting a
+/// model folder's graphs on free loopback ports; killed with its process
+/// group on drop.
+struct TritonHost {
+    child: Child,
+    ports: [u16; 3],
+    _stdout: BufReader<std::process::ChildStdout>,
+}
+
+impl TritonHost {
+    /// Starts it on `ports` (http, grpc, metrics) or on free ones.
+    fn start(model: &str, ports: Option<[u16; 3]>) -> TritonHost {
+        use std::os::unix::process::CommandExt;
+        let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+        let python = std::env::var_os("WORLDPACK_TRITON_PYTHON").map(PathBuf::from).unwrap_or(root.join(".venv-triton/bin/python"));
+        assert!(python.exists(), "{} is missing: run ./scripts/test.sh once (it makes .venv-triton with PyPI's nvidia-pytriton)", python.display());
+        let free = || std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port();
+        let [http, grpc, metrics] = ports.unwrap_or_else(|| [free(), free(), free()]);
+        let mut child = Command::new(python)
+            .arg(root.join("serving/triton/host.py"))
+            .arg("--model").arg(root.join(model))
+            .args(["--http-port", &http.to_string(), "--grpc-port", &grpc.to_string(), "--metrics-port", &metrics.to_string()])
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .process_group(0)
+            .spawn()
+            .unwrap();
+        let mut stdout = BufReader::new(child.stdout.take().unwrap());
+        let mut line = String::new();
+        while !line.starts_with("serving ") {
+            line.clear();
+            assert!(stdout.read_line(&mut line).unwrap() > 0, "serving/triton/host.py exited before serving (run it by hand to see why)");
+        }
+        TritonHost { child, ports: [http, grpc, metrics], _stdout: stdout }
+    }
+
+    /// The `--model-backend` URL.
+    fn backend(&self) -> String {
+        format!("triton://127.0.0.1:{}", self.ports[0])
+    }
+
+    /// A counter from Triton's Prometheus metrics for one model.
+    fn metric(&self, name: &str, model: &str) -> f64 {
+        let text = ureq::get(&format!("http://127.0.0.1:{}/metrics", self.ports[2])).call().unwrap().into_string().unwrap();
+        let prefix = format!("{name}{{model=\"{model}\",");
+        text.lines().find(|l| l.starts_with(&prefix)).and_then(|l| l.rsplit(' ').next()).and_then(|v| v.parse().ok())
+            .unwrap_or_else(|| panic!("no {prefix} in Triton's metrics"))
+    }
+
+    fn stop(&mut self) {
+        unsafe { libc_kill(-(self.child.id() as i32), 9) }; // the whole group: python and tritonserver
+        let _ = self.child.wait();
+    }
+}
+
+impl Drop for TritonHost {
+    fn drop(&mut self) {
+        self.stop();
+    }
+}
+
+unsafe extern "C" {
+    #[link_name = "kill"]
+    fn libc_kill(pid: i32, signal: i32) -> i32;
+}
+
+/// The graphs on Triton compute what they compute in this process (float
+/// tolerance), and a served session makes the same frames, byte for byte,
+/// with the same seeds.
+#[test]
+fn triton_runs_the_graphs_as_the_local_backend_does() {
+    let triton = TritonHost::start("fixtures/small", None);
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/small");
+    let local = model::Model::load(&dir, model::RuntimeOptions::default()).unwrap();
+    let manifest = local.manifest().clone();
+    let remote = model::Model::with_backend(&dir, manifest.clone(), Box::new(triton::TritonBackend::connect(&triton.backend(), &manifest).unwrap()));
+    assert_eq!(remote.provider(), "triton");
+    // Every graph on a batch of 3 pseudo-random inputs of its declared shapes.
+    let mut state = 7u64;
+    let mut noise = move || {
+        state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        ((state >> 40) as f32 / (1u64 << 24) as f32) * 2.0 - 1.0
+    };
+    let mut graphs = vec![(model::GraphRole::Encoder, manifest.autoencoder.encoder.clone()), (model::GraphRole::Decoder, manifest.autoencoder.decoder.clone())];
+    graphs.extend(manifest.denoiser.layouts.iter().map(|l| (model::GraphRole::Denoiser(&l.name), l.graph())));
+    for (role, spec) in graphs {
+        let inputs: Vec<(String, model::Tensor)> = spec
+            .inputs
+            .iter()
+            .map(|t| {
+                let shape: Vec<usize> = t.dims().iter().map(|&d| if d < 0 { 3 } else { d as usize }).collect();
+                let mut data: Vec<f32> = (0..shape.iter().product()).map(|_| noise()).collect();
+                if t.name.starts_with("context_mask") {
+                    data.iter_mut().for_each(|v| *v = 1.0);
+                } else if t.name == "timestep" || t.name == "rel_time" {
+                    data.iter_mut().for_each(|v| *v = (v.abs() * 10.0).round().max(1.0));
+                }
+                (t.name.clone(), model::Tensor::new(shape, data))
+            })
+            .collect();
+        let named: Vec<(&str, &model::Tensor)> = inputs.iter().map(|(n, t)| (n.as_str(), t)).collect();
+        let (want, got) = (local.run(role, &named).unwrap(), remote.run(role, &named).unwrap());
+        for (w, g) in want.iter().zip(&got) {
+            assert_eq!(w.shape, g.shape, "{role:?}");
+            let worst = w.data.iter().zip(&g.data).map(|(a, b)| (a - b).abs()).fold(0f32, f32::max);
+            assert!(worst <= 1e-5, "{role:?}: Triton differs from the local backend by {worst}");
+        }
+    }
+    // The same session served both ways.
+    let frames = |extra: &[&str]| -> Vec<Vec<u8>> {
+        let s = Server::start(&temp_store(&format!("triton-parity{}", extra.len())), extra);
+        let (_, c) = s.post("/v1/sessions", &json!({ "synthetic": { "seed": 5 } }));
+        let id = c["session"].as_u64().unwrap();
+        (1..=3u64)
+            .map(|k| {
+                let (code, r) = s.post(&format!("/v1/sessions/{id}/step"), &json!({ "action": { "forward": true, "yaw_deg": 6 }, "seed": k }));
+                assert_eq!(code, 200, "{r}");
+                s.bytes(&format!("/v1/sessions/{id}/frames/{k}/image"))
+            })
+            .collect()
+    };
+    assert_eq!(frames(&[]), frames(&["--model-backend", &triton.backend()]), "frames served through Triton differ");
+}
+
+/// Triton stopped under a running server: steps answer 503 naming triton,
+/// no frame is stored for them, and service resumes when Triton is back on
+/// the same port.
+#[test]
+fn a_stopped_triton_answers_503_and_service_resumes() {
+    let mut triton = TritonHost::start("fixtures/small", None);
+    let s = Server::start(&temp_store("triton-fault"), &["--model-backend", &triton.backend()]);
+    let (_, c) = s.post("/v1/sessions", &json!({ "synthetic": { "seed": 3 } }));
+    let id = c["session"].as_u64().unwrap();
+    let step = || s.post(&format!("/v1/sessions/{id}/step"), &json!({ "action": { "forward": true } }));
+    assert_eq!(step().0, 200);
+    triton.stop();
+    let (code, r) = step();
+    assert_eq!((code, r["error"]["field"].as_str()), (503, Some("triton")), "{r}");
+    assert_eq!(s.get(&format!("/v1/sessions/{id}")).1["frames"].as_u64(), Some(2), "the refused step stored nothing");
+    let _back = TritonHost::start("fixtures/small", Some(triton.ports));
+    let (code, r) = step();
+    assert_eq!((code, r["index"].as_u64()), (200, Some(2)), "{r}");
+}
+
+/// A Triton URL that is malformed or serves no such model stops the server
+/// at start with a message naming the flag.
+#[test]
+fn a_bad_model_backend_is_refused_at_start() {
+    for (backend, says) in [("grpc://127.0.0.1:1", "triton://HOST:PORT"), ("triton://127.0.0.1:1", "triton is unavailable")] {
+        let out = Command::new(env!("CARGO_BIN_EXE_worldpack"))
+            .args(["serve", "--addr", "127.0.0.1:0", "--store", temp_store("bad-backend").to_str().unwrap(), "--model-backend", backend])
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success() && stderr.contains("--model-backend") && stderr.contains(says), "{backend}: {stderr}");
     }
 }

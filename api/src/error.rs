@@ -54,6 +54,7 @@ impl From<model::ModelError> for ApiError {
     fn from(e: model::ModelError) -> Self {
         match e {
             model::ModelError::Input { field, message } => ApiError::bad(field, message),
+            model::ModelError::Unavailable { ref service, .. } => ApiError::new(StatusCode::SERVICE_UNAVAILABLE, service.clone(), e.to_string()),
             other => ApiError::internal(other),
         }
     }

@@ -35,6 +35,10 @@ pub struct Config {
     pub store: PathBuf,
     /// `None`: memory-only (observe and select work, step does not).
     pub model: Option<PathBuf>,
+    /// Where the model's graphs run: `None` in this process through ONNX
+    /// Runtime; `triton://HOST:PORT` on a Triton server (the manifest is
+    /// still read from `model`).
+    pub model_backend: Option<String>,
     pub runtime: model::RuntimeOptions,
     /// Sampler steps when a step request does not say.
     pub steps: usize,
@@ -65,6 +69,7 @@ impl Default for Config {
             addr: "127.0.0.1:8080".parse().unwrap(),
             store: PathBuf::from("data/worldpack.redb"),
             model: Some(PathBuf::from("fixtures/small")),
+            model_backend: None,
             runtime: model::RuntimeOptions { provider: model::Provider::Cpu, threads: 1 },
             steps: 16,
             method: Method::Ancestral,
@@ -120,9 +125,15 @@ impl Server {
     pub async fn bind(config: Config) -> Result<Server, String> {
         // A PostgreSQL client blocks on a runtime of its own: never on an async worker.
         let store = tokio::task::block_in_place(|| Store::open(&config.store)).map_err(|e| e.to_string())?;
-        let model = match &config.model {
-            Some(dir) => Some(Model::load(dir, config.runtime).map_err(|e| format!("--model: {e}"))?),
-            None => None,
+        let model = match (&config.model, &config.model_backend) {
+            (Some(dir), None) => Some(Model::load(dir, config.runtime).map_err(|e| format!("--model: {e}"))?),
+            (Some(dir), Some(url)) => {
+                let manifest = model::Manifest::load(dir).map_err(|e| format!("--model: {e}"))?;
+                let backend = tokio::task::block_in_place(|| triton::TritonBackend::connect(url, &manifest)).map_err(|e| format!("--model-backend: {e}"))?;
+                Some(Model::with_backend(dir, manifest, Box::new(backend)))
+            }
+            (None, Some(_)) => return Err("--model-backend: a memory-only server runs no model".into()),
+            (None, None) => None,
         };
         session::policy_of(&config.policy).map_err(|e| format!("--policy: {}", e.message))?;
         if config.overlay_warp && !model.as_ref().is_some_and(|m| m.manifest().denoiser.warp.is_some()) {
@@ -154,9 +165,10 @@ impl Server {
         let listener = tokio::net::TcpListener::bind(config.addr).await.map_err(|e| format!("--addr {}: {e}", config.addr))?;
         let addr = listener.local_addr().map_err(|e| e.to_string())?;
         let description = format!(
-            "listening on http://{addr} (model: {}, provider: {}, store: {}, {restored} sessions restored)",
+            "listening on http://{addr} (model: {}, provider: {}{}, store: {}, {restored} sessions restored)",
             config.model.as_ref().map_or("none (memory only)".into(), |p| p.display().to_string()),
             state.engine.model.as_ref().map_or("-", |m| m.provider()),
+            config.model_backend.as_ref().map_or(String::new(), |url| format!(" at {url}")),
             config.store.display()
         );
         Ok(Server { listener, router, description })

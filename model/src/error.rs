@@ -19,6 +19,12 @@ pub enum ModelError {
     Input { field: String, message: String },
     #[error("ONNX Runtime: {0}")]
     Ort(String),
+    /// A remote backend cannot be reached (a transient fault: retry later).
+    #[error("{service} is unavailable: {message}")]
+    Unavailable { service: String, message: String },
+    /// A remote backend answered with an error of its own.
+    #[error("{service}: {message}")]
+    Remote { service: String, message: String },
 }
 
 impl ModelError {

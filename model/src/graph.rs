@@ -90,15 +90,7 @@ impl Graph {
     /// returns the outputs in the spec's order.
     pub fn run(&self, inputs: &[(&str, &Tensor)]) -> Result<Vec<Tensor>, ModelError> {
         let mut feed = Vec::with_capacity(inputs.len());
-        for spec in &self.spec.inputs {
-            let Some((_, t)) = inputs.iter().find(|(n, _)| *n == spec.name) else {
-                return Err(ModelError::input(&spec.name, format!("{}: input missing", self.spec.file)));
-            };
-            let want = spec.dims();
-            let fits = want.len() == t.shape.len() && want.iter().zip(&t.shape).all(|(&w, &g)| w < 0 || w as usize == g);
-            if !fits || t.data.len() != t.shape.iter().product::<usize>() {
-                return Err(ModelError::input(&spec.name, format!("expected shape {:?}, got {:?}", spec.shape, t.shape)));
-            }
+        for (spec, t) in self.spec.inputs.iter().zip(self.spec.ordered_inputs(inputs)?) {
             let value = TensorRef::from_array_view((t.shape.clone(), &t.data[..]))?;
             feed.push((spec.name.clone(), value));
         }

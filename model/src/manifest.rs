@@ -8,6 +8,7 @@ use memory::Intrinsics;
 use serde::Deserialize;
 
 use crate::error::ModelError;
+use crate::graph::Tensor;
 
 pub const FORMAT: &str = "worldpack-model/1";
 
@@ -73,6 +74,28 @@ pub struct GraphSpec {
     pub file: String,
     pub inputs: Vec<TensorSpec>,
     pub outputs: Vec<TensorSpec>,
+}
+
+impl GraphSpec {
+    /// `inputs` (named, any order) in this spec's order, each checked
+    /// against its declared shape: every backend refuses the same bad input
+    /// with the same error, before anything runs.
+    pub fn ordered_inputs<'a>(&self, inputs: &[(&str, &'a Tensor)]) -> Result<Vec<&'a Tensor>, ModelError> {
+        self.inputs
+            .iter()
+            .map(|spec| {
+                let Some((_, t)) = inputs.iter().find(|(n, _)| *n == spec.name) else {
+                    return Err(ModelError::input(&spec.name, format!("{}: input missing", self.file)));
+                };
+                let want = spec.dims();
+                let fits = want.len() == t.shape.len() && want.iter().zip(&t.shape).all(|(&w, &g)| w < 0 || w as usize == g);
+                if !fits || t.data.len() != t.shape.iter().product::<usize>() {
+                    return Err(ModelError::input(&spec.name, format!("expected shape {:?}, got {:?}", spec.shape, t.shape)));
+                }
+                Ok(*t)
+            })
+            .collect()
+    }
 }
 
 #[derive(Clone, Debug, Deserialize)]
