@@ -295,7 +295,7 @@ pub struct FrameInput {
         (status = 400, description = "a field is missing or wrong (the body names it)", body = ErrorBody),
         (status = 413, description = "the body is larger than the server's limit", body = ErrorBody),
         (status = 415, description = "the body is not application/json", body = ErrorBody),
-        (status = 503, description = "too many model calls in flight; retry", body = ErrorBody)))]
+        (status = 503, description = "too many model calls in flight, or a dependency (field `store` or `triton`) unreachable; retry", body = ErrorBody)))]
 pub async fn create(State(st): St, headers: HeaderMap, body: Result<Bytes, BytesRejection>) -> Res<(StatusCode, Json<Created>)> {
     let req: CreateRequest = parse(&headers, body)?;
     if let Some(s) = &req.synthetic {
@@ -414,7 +414,7 @@ pub struct StepRequest {
         (status = 413, description = "the body is larger than the server's limit", body = ErrorBody),
         (status = 415, description = "the body is not application/json", body = ErrorBody),
         (status = 429, description = "too many requests queued on the session", body = ErrorBody),
-        (status = 503, description = "too many model calls in flight; retry", body = ErrorBody)))]
+        (status = 503, description = "too many model calls in flight, or a dependency (field `store` or `triton`) unreachable; retry", body = ErrorBody)))]
 pub async fn step(State(st): St, id: Result<Path<u64>, PathRejection>, headers: HeaderMap, body: Result<Bytes, BytesRejection>) -> Res<Json<StepAnswer>> {
     let started = Instant::now();
     let id = session_id(id)?;
@@ -516,7 +516,7 @@ fn depth_png(b64: &str, w: u32, h: u32) -> Res<Vec<u8>> {
         (status = 413, description = "the body is larger than the server's limit", body = ErrorBody),
         (status = 415, description = "the body is not application/json", body = ErrorBody),
         (status = 429, description = "too many requests queued on the session", body = ErrorBody),
-        (status = 503, description = "too many model calls in flight; retry", body = ErrorBody)))]
+        (status = 503, description = "too many model calls in flight, or a dependency (field `store` or `triton`) unreachable; retry", body = ErrorBody)))]
 pub async fn observe(State(st): St, id: Result<Path<u64>, PathRejection>, headers: HeaderMap, body: Result<Bytes, BytesRejection>) -> Res<Json<Observed>> {
     let id = session_id(id)?;
     let req: ObserveRequest = parse(&headers, body)?;

@@ -25,13 +25,7 @@ from pytriton.decorators import batch
 from pytriton.model_config import DynamicBatcher, ModelConfig, Tensor
 from pytriton.triton import Triton, TritonConfig
 
-
-def graphs(manifest):
-    """(role, graph spec) for every graph the manifest lists; role as in the Triton model name."""
-    yield "encoder", manifest["autoencoder"]["encoder"]
-    yield "decoder", manifest["autoencoder"]["decoder"]
-    for layout in manifest["denoiser"]["layouts"]:
-        yield f"denoiser-{layout['name']}", layout
+from repository import graphs  # one naming of the graphs for both ways of serving
 
 
 def item_dims(spec):
