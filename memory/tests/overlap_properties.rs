@@ -109,6 +109,10 @@ fn a_floor_only_decides_whether_the_exact_overlap_is_returned() {
         let q = random_frustum(&mut rng, 25.0);
         let c = random_frustum(&mut rng, 25.0);
         let exact = exact_overlap(&q, &c);
+        // A floor just under the exact overlap must let it through: any bound
+        // that undercuts the true volume (a clip's or the closed form's) fails here.
+        let at_floor = overlap_unless_below(&q, &c, exact - 1e-10).map(f64::to_bits);
+        assert_eq!(at_floor, Some(exact.to_bits()), "pair {pair}: ruled out just under its own overlap {exact}");
         let floor = rng.next_f64();
         match overlap_unless_below(&q, &c, floor) {
             Some(o) => {

@@ -227,16 +227,25 @@ pub fn overlap_unless_below(query: &Frustum, candidate: &Frustum, floor: f64) ->
 /// order depends on the inputs only, so every caller gets the same number.
 pub fn clipped_volume(query: &Frustum, planes: &[Plane], eps: f64, floor_volume: f64) -> Option<f64> {
     let mut cutting: SmallVec<[(f64, usize); 12]> = SmallVec::new();
+    let mut distances: SmallVec<[[f64; 8]; 12]> = SmallVec::new();
     for (i, plane) in planes.iter().enumerate() {
-        let depth: f64 = query.corners().iter().map(|&c| plane.distance(c)).filter(|&d| d > eps).sum();
+        let d = query.corners().map(|c| plane.distance(c));
+        let depth: f64 = d.iter().filter(|&&x| x > eps).sum();
         if depth > 0.0 {
             cutting.push((depth, i));
         }
+        distances.push(d);
     }
     if cutting.is_empty() {
         return Some(query.volume());
     }
     cutting.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
+    // The query's volume inside one plane, in closed form, already bounds the
+    // volume inside all of them: most frames that cannot enter are proved so
+    // by the deepest planes without building a polytope.
+    if floor_volume > 0.0 && cutting.len() > 1 && cutting.iter().take(SINGLE_PLANE_TRIES).any(|&(_, i)| halfspace_volume(query.corners(), &distances[i]) < floor_volume) {
+        return None;
+    }
     let mut poly = Polytope::from_frustum(query);
     for (n, &(_, i)) in cutting.iter().enumerate() {
         let cut = poly.clip(&planes[i], eps);
@@ -253,6 +262,54 @@ pub fn clipped_volume(query: &Frustum, planes: &[Plane], eps: f64, floor_volume:
 /// Slack below a floor within which [`overlap_unless_below`] still computes
 /// the exact overlap (far above the clipper's rounding).
 const BELOW_MARGIN: f64 = 1e-9;
+
+/// Planes (deepest cut first) whose closed-form bound is tried before clipping.
+const SINGLE_PLANE_TRIES: usize = 2;
+
+/// The frustum as six tetrahedra around its diagonal from corner 0 to corner
+/// 6: every face of the frustum holds one of the two, so each face splits
+/// into two triangles through it, and each triangle with the opposite end of
+/// the diagonal is one tetrahedron.
+const TETRAHEDRA: [[usize; 4]; 6] = [[0, 1, 2, 6], [0, 2, 3, 6], [0, 3, 7, 6], [0, 7, 4, 6], [0, 4, 5, 6], [0, 5, 1, 6]];
+
+/// The volume of the hexahedron `corners` (frustum order) where the signed
+/// distance `d` (one per corner, to a plane, linear in space) is ≤ 0.
+pub fn halfspace_volume(corners: &[DVec3; 8], d: &[f64; 8]) -> f64 {
+    TETRAHEDRA.iter().map(|t| tetrahedron_inside(t.map(|i| corners[i]), t.map(|i| d[i]))).sum()
+}
+
+fn tetrahedron_volume(a: DVec3, b: DVec3, c: DVec3, d: DVec3) -> f64 {
+    (b - a).cross(c - a).dot(d - a).abs() / 6.0
+}
+
+/// The part of tetrahedron `v` where the linear function with values `d` at
+/// its vertices is ≤ 0.
+fn tetrahedron_inside(v: [DVec3; 4], d: [f64; 4]) -> f64 {
+    let inside = d.map(|x| x <= 0.0);
+    let count = inside.iter().filter(|&&i| i).count();
+    // Where the plane crosses the edge from vertex i to vertex j.
+    let cross = |i: usize, j: usize| v[i] + (v[j] - v[i]) * (d[i] / (d[i] - d[j]));
+    match count {
+        0 => 0.0,
+        4 => tetrahedron_volume(v[0], v[1], v[2], v[3]),
+        1 | 3 => {
+            // A corner tetrahedron cut off at one vertex: inside it (1) or outside (3).
+            let lone = (0..4).find(|&i| inside[i] == (count == 1)).expect("one vertex on its own side");
+            let o: SmallVec<[usize; 3]> = (0..4).filter(|&i| i != lone).collect();
+            let corner = tetrahedron_volume(v[lone], cross(lone, o[0]), cross(lone, o[1]), cross(lone, o[2]));
+            if count == 1 { corner } else { tetrahedron_volume(v[0], v[1], v[2], v[3]) - corner }
+        }
+        _ => {
+            // Two inside (a, b), two outside (c, e): a prism with triangles
+            // (a, ac, ae) and (b, bc, be), split into three tetrahedra.
+            let i: SmallVec<[usize; 2]> = (0..4).filter(|&k| inside[k]).collect();
+            let o: SmallVec<[usize; 2]> = (0..4).filter(|&k| !inside[k]).collect();
+            let (a, b) = (v[i[0]], v[i[1]]);
+            let (ac, ae, bc, be) = (cross(i[0], o[0]), cross(i[0], o[1]), cross(i[1], o[0]), cross(i[1], o[1]));
+            tetrahedron_volume(a, ac, ae, b) + tetrahedron_volume(ac, ae, b, bc) + tetrahedron_volume(ae, b, bc, be)
+        }
+    }
+}
 
 #[cfg(test)]
 mod tests {
@@ -313,6 +370,25 @@ mod tests {
         let c = at(DMat3::from_rotation_y(std::f64::consts::FRAC_PI_4), DVec3::ZERO, 0.1, 10.0);
         let o = exact_overlap(&a, &c);
         assert!(o > 0.3 && o < 0.7, "{o}");
+    }
+
+    #[test]
+    fn the_closed_form_volume_inside_a_plane_is_the_clipped_volume() {
+        let mut rng = crate::rng::SplitMix64::new(3);
+        let mut u = move || rng.next_f64();
+        for case in 0..2000 {
+            let rot = DMat3::from_euler(glam::EulerRot::YXZ, 6.3 * u(), 1.2 * (u() - 0.5), 0.3 * (u() - 0.5));
+            let f = at(rot, DVec3::new(4.0 * u(), 60.0 + 4.0 * u(), 4.0 * u()), 0.1 + u(), 5.0 + 30.0 * u());
+            // A plane through a random point of the frustum's box, random normal.
+            let b = f.aabb();
+            let point = b.min + (b.max - b.min) * DVec3::new(u(), u(), u());
+            let normal = DVec3::new(u() - 0.5, u() - 0.5, u() - 0.5).normalize();
+            let plane = Plane { normal, offset: normal.dot(point) };
+            let mut poly = Polytope::from_frustum(&f);
+            poly.clip(&plane, 0.0);
+            let closed = halfspace_volume(f.corners(), &f.corners().map(|c| plane.distance(c)));
+            assert!((closed - poly.volume()).abs() <= 1e-9 * f.volume(), "case {case}: {closed} vs {}", poly.volume());
+        }
     }
 
     #[test]
