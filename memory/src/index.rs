@@ -119,11 +119,21 @@ impl Hull {
     }
 }
 
+/// A group's member: what selection reads of it before any geometry, kept
+/// beside its group's other members (a stored frame is ~800 bytes, so
+/// reading these from the frames themselves cost a cache miss each).
+#[derive(Clone, Copy)]
+struct Member {
+    slot: usize,
+    time: u64,
+    aabb: Aabb,
+}
+
 /// Frames with nearby cameras looking in similar directions.
 struct Group {
     hull: Hull,
-    /// Member slots, oldest to newest by `(time, id)`.
-    slots: Vec<usize>,
+    /// Members, oldest to newest by `(time, id)`.
+    members: Vec<Member>,
     /// The box around every member's frustum.
     aabb: Aabb,
     /// The coarse group (3× the cell and the angle bins) that holds this one.
@@ -209,13 +219,13 @@ impl FrameMemory {
         let next_group = self.groups.len();
         let g = *self.group_index.entry(fine_key).or_insert(next_group);
         if g == next_group {
-            self.groups.push(Group { hull: Hull::new(&frame.frustum), slots: Vec::new(), aabb: *frame.frustum.aabb(), coarse: c });
+            self.groups.push(Group { hull: Hull::new(&frame.frustum), members: Vec::new(), aabb: *frame.frustum.aabb(), coarse: c });
         }
         let group = &mut self.groups[g];
-        let before = (!group.slots.is_empty()).then(|| GroupBox { group: g, envelope: envelope(&group.aabb) });
+        let before = (!group.members.is_empty()).then(|| GroupBox { group: g, envelope: envelope(&group.aabb) });
         group.cover(&frame.frustum);
-        let pos = group.slots.partition_point(newer_than);
-        group.slots.insert(pos, slot);
+        let pos = group.members.partition_point(|m| newer_than(&m.slot));
+        group.members.insert(pos, Member { slot, time: frame.time, aabb: *frame.frustum.aabb() });
         let after = GroupBox { group: g, envelope: envelope(&group.aabb) };
         if before != Some(after) {
             if let Some(old) = before {
@@ -272,7 +282,8 @@ impl FrameMemory {
 
         // WorldMem's angular test has no range: a box cannot rule a frame out.
         let ranged = !matches!(policy.estimator, Estimator::WorldMem(_));
-        let meets = |slot: usize| !ranged || self.frames[slot].frustum.aabb().intersects(target.aabb());
+        let meets_box = |aabb: &Aabb| !ranged || aabb.intersects(target.aabb());
+        let meets = |slot: usize| meets_box(self.frames[slot].frustum.aabb());
         // Group bounds hold for the exact overlap only (an estimate may
         // exceed them), and only rank correctly while the score grows with it.
         let use_bounds = matches!(policy.estimator, Estimator::Exact) && policy.weights.overlap > 0.0;
@@ -296,14 +307,15 @@ impl FrameMemory {
             };
             // Best first: a queue of each group's next member (newest first)
             // keyed by the best score that member could reach.
-            let upper = |bound: f64, slot: usize| policy.weights.score(bound, age(self.frames[slot].time, t_now));
+            let upper = |bound: f64, member: &Member| policy.weights.score(bound, age(member.time, t_now));
             let mut queue: BinaryHeap<Next> = BinaryHeap::with_capacity(groups.len());
             let mut coarse_bounds = vec![f64::NAN; self.coarse.len()];
             for g in groups {
                 let group = &self.groups[g];
-                stats.box_candidates += group.slots.len();
-                let newest = group.slots.len() - 1;
-                if best.cannot_admit(upper(1.0, group.slots[newest])) {
+                stats.box_candidates += group.members.len();
+                let newest = group.members.len() - 1;
+                let newest_member = &group.members[newest];
+                if best.cannot_admit(upper(1.0, newest_member)) {
                     continue;
                 }
                 let bound = if use_bounds {
@@ -313,12 +325,12 @@ impl FrameMemory {
                         stats.group_bounds += 1;
                         *coarse = self.coarse[group.coarse].overlap_bound(target, best.overlap_to_enter(&policy.weights, 0.0));
                     }
-                    if best.cannot_admit(upper(*coarse, group.slots[newest])) {
+                    if best.cannot_admit(upper(*coarse, newest_member)) {
                         continue;
                     }
-                    if group.slots.len() >= MIN_GROUP_FOR_BOUND {
+                    if group.members.len() >= MIN_GROUP_FOR_BOUND {
                         stats.group_bounds += 1;
-                        let floor = best.overlap_to_enter(&policy.weights, age(self.frames[group.slots[newest]].time, t_now));
+                        let floor = best.overlap_to_enter(&policy.weights, age(newest_member.time, t_now));
                         group.hull.overlap_bound(target, floor).min(*coarse)
                     } else {
                         *coarse
@@ -326,24 +338,25 @@ impl FrameMemory {
                 } else {
                     1.0
                 };
-                queue.push(Next { upper: upper(bound, group.slots[newest]), bound, group: g, index: newest });
+                queue.push(Next { upper: upper(bound, newest_member), bound, group: g, index: newest });
             }
             while let Some(next) = queue.pop() {
                 if best.cannot_admit(next.upper) {
                     break; // every member still queued has a lower bound
                 }
-                let slots = &self.groups[next.group].slots;
-                let slot = slots[next.index];
+                let members = &self.groups[next.group].members;
+                let member = &members[next.index];
+                let slot = member.slot;
                 if next.index > 0 {
-                    queue.push(Next { upper: upper(next.bound, slots[next.index - 1]), index: next.index - 1, ..next });
+                    queue.push(Next { upper: upper(next.bound, &members[next.index - 1]), index: next.index - 1, ..next });
                 }
-                if Some(slot) == pinned || !meets(slot) || warm.contains(&slot) {
+                if Some(slot) == pinned || !meets_box(&member.aabb) || warm.contains(&slot) {
                     continue;
                 }
                 stats.overlap_evaluations += 1;
                 if use_bounds {
                     // The clip stops once it proves this frame cannot enter.
-                    let floor = best.overlap_to_enter(&policy.weights, age(self.frames[slot].time, t_now));
+                    let floor = best.overlap_to_enter(&policy.weights, age(member.time, t_now));
                     match crate::overlap::overlap_unless_below(target, &self.frames[slot].frustum, floor) {
                         Some(o) => best.push(describe(slot, o)),
                         None => stats.cut_short += 1,
@@ -379,7 +392,7 @@ struct Next {
     upper: f64,
     bound: f64,
     group: usize,
-    /// Position in the group's `slots` (oldest first).
+    /// Position in the group's `members` (oldest first).
     index: usize,
 }
 
