@@ -9,7 +9,7 @@ use std::time::Instant;
 use anyhow::{Context, Result, anyhow};
 use api::engine::Engine;
 use api::store::Store;
-use model::{Model, RuntimeOptions, Sampler};
+use model::{RuntimeOptions, Sampler};
 use serde::Serialize;
 use serde_json::{Value, json};
 use motion::Action;
@@ -67,12 +67,13 @@ pub fn run(
     sessions: &[usize],
     per_session: usize,
     batch_window_ms: u64,
+    model_backend: Option<&str>,
     json_out: bool,
 ) -> Result<()> {
     let policy = json!({ "kind": "worldpack" });
     // The library path: an engine with its own store, no HTTP.
     let lib_store = temp_store("library");
-    let engine = Engine::new(Store::open(&lib_store)?, Some(Model::load(model_dir, runtime)?));
+    let engine = Engine::new(Store::open(&lib_store)?, Some(api::load_model(model_dir, model_backend, runtime).map_err(anyhow::Error::msg)?));
     let sampler = Sampler::new(&engine.model.as_ref().unwrap().manifest().diffusion, steps, model::Method::Ancestral, 0.0)?;
     let mut session = engine.create_synthetic(policy.clone(), 3, None).map_err(|e| anyhow!("{}", e.message))?;
 
@@ -84,6 +85,7 @@ pub fn run(
             addr: "127.0.0.1:0".parse()?,
             store: store.to_path_buf(),
             model: Some(model_dir.to_path_buf()),
+            model_backend: model_backend.map(String::from),
             runtime,
             steps,
             batch_window,

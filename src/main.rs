@@ -275,6 +275,9 @@ enum BenchCommand {
         /// Also run the concurrent rows against a server that batches across sessions with this window (ms; 0: only without).
         #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u64).range(0..=1000))]
         batch_window_ms: u64,
+        /// Run the graphs on a Triton server (`triton://HOST:PORT`, as `serve --model-backend`).
+        #[arg(long)]
+        model_backend: Option<String>,
         #[arg(long)]
         json: bool,
     },
@@ -338,13 +341,13 @@ fn main() -> ExitCode {
             let batches: Vec<usize> = batches.iter().map(|&b| b as usize).collect();
             report(bench_step::run(&model, model::RuntimeOptions { provider, threads }, &steps, calls as usize, &batches, json), "bench step")
         }
-        Command::Bench { what: BenchCommand::Serve { model, steps, calls, sessions, per_session, provider, threads, batch_window_ms, json } } => {
+        Command::Bench { what: BenchCommand::Serve { model, steps, calls, sessions, per_session, provider, threads, batch_window_ms, model_backend, json } } => {
             if let Some(bad) = sessions.iter().find(|&&n| n == 0 || n > 256) {
                 eprintln!("worldpack bench serve: --sessions must lie in 1..=256, got {bad}");
                 return ExitCode::from(2);
             }
             let runtime = model::RuntimeOptions { provider, threads };
-            report(bench_serve::run(&model, runtime, steps as usize, calls as usize, &sessions, per_session as usize, batch_window_ms, json), "bench serve")
+            report(bench_serve::run(&model, runtime, steps as usize, calls as usize, &sessions, per_session as usize, batch_window_ms, model_backend.as_deref(), json), "bench serve")
         }
         Command::Bench { what: BenchCommand::Store { frames, json } } => report(bench_store::run(frames as usize, json), "bench store"),
         Command::Bench { what: BenchCommand::StepProbe { model, layout, provider, threads, calls } } => {

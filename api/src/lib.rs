@@ -113,6 +113,19 @@ pub(crate) struct AppState {
     pub metrics: Metrics,
 }
 
+/// The model in `dir`, its graphs run in this process (`backend` None) or on
+/// the Triton server at `backend` (`triton://HOST:PORT`); errors name the flag.
+pub fn load_model(dir: &std::path::Path, backend: Option<&str>, runtime: model::RuntimeOptions) -> Result<Model, String> {
+    match backend {
+        None => Model::load(dir, runtime).map_err(|e| format!("--model: {e}")),
+        Some(url) => {
+            let manifest = model::Manifest::load(dir).map_err(|e| format!("--model: {e}"))?;
+            let graphs = triton::TritonBackend::connect(url, &manifest).map_err(|e| format!("--model-backend: {e}"))?;
+            Ok(Model::with_backend(dir, manifest, Box::new(graphs)))
+        }
+    }
+}
+
 /// A bound, not yet running server: its address is known (port 0 resolved).
 pub struct Server {
     listener: tokio::net::TcpListener,
@@ -125,15 +138,10 @@ impl Server {
     pub async fn bind(config: Config) -> Result<Server, String> {
         // A PostgreSQL client blocks on a runtime of its own: never on an async worker.
         let store = tokio::task::block_in_place(|| Store::open(&config.store)).map_err(|e| e.to_string())?;
-        let model = match (&config.model, &config.model_backend) {
-            (Some(dir), None) => Some(Model::load(dir, config.runtime).map_err(|e| format!("--model: {e}"))?),
-            (Some(dir), Some(url)) => {
-                let manifest = model::Manifest::load(dir).map_err(|e| format!("--model: {e}"))?;
-                let backend = tokio::task::block_in_place(|| triton::TritonBackend::connect(url, &manifest)).map_err(|e| format!("--model-backend: {e}"))?;
-                Some(Model::with_backend(dir, manifest, Box::new(backend)))
-            }
-            (None, Some(_)) => return Err("--model-backend: a memory-only server runs no model".into()),
-            (None, None) => None,
+        let model = match &config.model {
+            Some(dir) => Some(tokio::task::block_in_place(|| load_model(dir, config.model_backend.as_deref(), config.runtime))?),
+            None if config.model_backend.is_some() => return Err("--model-backend: a memory-only server runs no model".into()),
+            None => None,
         };
         session::policy_of(&config.policy).map_err(|e| format!("--policy: {}", e.message))?;
         if config.overlay_warp && !model.as_ref().is_some_and(|m| m.manifest().denoiser.warp.is_some()) {
