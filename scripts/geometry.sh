@@ -9,9 +9,9 @@
 #   ./scripts/geometry.sh train            # STEPS (8000 in all, from the recipe's 2,337), MINUTES
 #   ./scripts/geometry.sh export           # -> fixtures/variants/worldpack_geometry
 #   ./scripts/geometry.sh eval | probe | walk
-# POLICY=nearest_frame_packing RUN=runs/geo_nfp OUT=... trains and exports the
-# same fine-tune from another recipe model (the issue-19 ablation: NFP with the
-# warp input, its warps made only from the frames its own plan selected).
+# POLICY=nearest_frame_packing (or memory_retrieval) RUN=runs/geo_nfp OUT=... trains
+# and exports the same fine-tune from another recipe model (the issue-19 ablation,
+# rolled out as trained and with --plan-warps: warps only from its own plan's frames).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 run="${RUN:-runs/geo}"
@@ -44,6 +44,9 @@ case "${1:-}" in
         --extra baseline_ctx_noise=fixtures/variants/baseline_ctx_noise --extra worldpack_recipe=$recipe \
         --extra nearest_frame_packing_recipe=fixtures/variants/nearest_frame_packing_recipe \
         --extra memory_retrieval_recipe=fixtures/variants/memory_retrieval_recipe --extra "$geo" \
+        --extra baseline_continued=fixtures/variants/baseline_continued --plan-warps worldpack_geometry \
+        --extra nearest_frame_packing_geometry=fixtures/variants/nearest_frame_packing_geometry --plan-warps nearest_frame_packing_geometry \
+        --extra memory_retrieval_geometry=fixtures/variants/memory_retrieval_geometry --plan-warps memory_retrieval_geometry \
         --composite baseline --composite worldpack_geometry --against worldpack_recipe \
         --strip worldpack_geometry,worldpack_recipe,baseline,reproject_fused --threads "${EVAL_THREADS:-2}" "${@:2}" ;;
   probe)
