@@ -127,6 +127,8 @@ struct Member {
     slot: usize,
     time: u64,
     aabb: Aabb,
+    planes: [Plane; 6],
+    scale: f64,
 }
 
 /// Frames with nearby cameras looking in similar directions.
@@ -225,7 +227,7 @@ impl FrameMemory {
         let before = (!group.members.is_empty()).then(|| GroupBox { group: g, envelope: envelope(&group.aabb) });
         group.cover(&frame.frustum);
         let pos = group.members.partition_point(|m| newer_than(&m.slot));
-        group.members.insert(pos, Member { slot, time: frame.time, aabb: *frame.frustum.aabb() });
+        group.members.insert(pos, Member { slot, time: frame.time, aabb: *frame.frustum.aabb(), planes: *frame.frustum.planes(), scale: frame.frustum.scale() });
         let after = GroupBox { group: g, envelope: envelope(&group.aabb) };
         if before != Some(after) {
             if let Some(old) = before {
@@ -357,7 +359,8 @@ impl FrameMemory {
                 if use_bounds {
                     // The clip stops once it proves this frame cannot enter.
                     let floor = best.overlap_to_enter(&policy.weights, age(member.time, t_now));
-                    match crate::overlap::overlap_unless_below(target, &self.frames[slot].frustum, floor) {
+                    // Its box meets the target's (checked above): the planes beside it are all the clip needs.
+                    match crate::overlap::overlap_within_unless_below(target, &member.planes, member.scale, floor) {
                         Some(o) => best.push(describe(slot, o)),
                         None => stats.cut_short += 1,
                     }

@@ -208,13 +208,21 @@ pub fn exact_overlap(query: &Frustum, candidate: &Frustum) -> f64 {
 /// that leave every corner inside cut nothing and are skipped. The order
 /// depends on the two frusta only, so every caller gets the same number.
 pub fn overlap_unless_below(query: &Frustum, candidate: &Frustum, floor: f64) -> Option<f64> {
-    let zero = || (0.0 >= floor - BELOW_MARGIN).then_some(0.0);
     if !query.aabb().intersects(candidate.aabb()) {
-        return zero();
+        return (0.0 >= floor - BELOW_MARGIN).then_some(0.0);
     }
-    let eps = ON_PLANE * query.scale().max(candidate.scale());
+    overlap_within_unless_below(query, candidate.planes(), candidate.scale(), floor)
+}
+
+/// [`overlap_unless_below`] for a candidate given by its planes and
+/// [`Frustum::scale`] (whose box is known to meet the query's): the index
+/// keeps these beside each member, so ranking reads no stored frame.
+pub(crate) fn overlap_within_unless_below(query: &Frustum, planes: &[Plane; 6], scale: f64, floor: f64) -> Option<f64> {
+    let zero = || (0.0 >= floor - BELOW_MARGIN).then_some(0.0);
+    let candidate_planes = planes;
+    let eps = ON_PLANE * query.scale().max(scale);
     // Rounding in a partial volume must never reject a frame at its floor.
-    let volume = clipped_volume(query, candidate.planes(), eps, (floor - BELOW_MARGIN) * query.volume())?;
+    let volume = clipped_volume(query, candidate_planes, eps, (floor - BELOW_MARGIN) * query.volume())?;
     let overlap = (volume / query.volume()).clamp(0.0, 1.0);
     if overlap == 0.0 { zero() } else { (overlap >= floor - BELOW_MARGIN).then_some(overlap) }
 }
