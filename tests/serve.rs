@@ -464,6 +464,8 @@ impl Drop for PgCluster {
 unsafe extern "C" {
     #[link_name = "geteuid"]
     fn libc_geteuid() -> u32;
+    #[link_name = "kill"]
+    fn libc_kill(pid: i32, signal: i32) -> i32;
 }
 
 /// Two replicas on one PostgreSQL, sharing nothing else: 16 sessions made on
@@ -920,10 +922,6 @@ impl Drop for TritonHost {
     }
 }
 
-unsafe extern "C" {
-    #[link_name = "kill"]
-    fn libc_kill(pid: i32, signal: i32) -> i32;
-}
 
 /// The graphs on Triton compute what they compute in this process (float
 /// tolerance), and a served session makes the same frames, byte for byte,

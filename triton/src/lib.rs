@@ -60,7 +60,7 @@ impl TritonBackend {
         let agent = ureq::AgentBuilder::new().timeout_connect(Duration::from_secs(5)).timeout(Duration::from_secs(120)).build();
         let graph = |role: GraphRole, spec: GraphSpec| -> Result<RemoteGraph, ModelError> {
             let name = model_name(&manifest.name, role);
-            let metadata = get_json(&agent, &format!("{base}/v2/models/{name}"))?;
+            let metadata = get_json(&agent, &base, &format!("/v2/models/{name}"))?;
             check_metadata(&name, &spec, &metadata)?;
             let ready = agent.get(&format!("{base}/v2/models/{name}/ready")).call();
             if ready.is_err() {
@@ -224,10 +224,9 @@ fn check_metadata(name: &str, spec: &GraphSpec, metadata: &Value) -> Result<(), 
     Ok(())
 }
 
-fn get_json(agent: &ureq::Agent, url: &str) -> Result<Value, ModelError> {
-    let base = url.split("/v2/").next().unwrap_or(url);
-    let response = agent.get(url).call().map_err(|e| call_error(base, e))?;
-    response.into_json().map_err(|e| remote(format!("{url}: {e}")))
+fn get_json(agent: &ureq::Agent, base: &str, path: &str) -> Result<Value, ModelError> {
+    let response = agent.get(&format!("{base}{path}")).call().map_err(|e| call_error(base, e))?;
+    response.into_json().map_err(|e| remote(format!("{base}{path}: {e}")))
 }
 
 /// Transport failures and 503 are the server being away (retry later); any

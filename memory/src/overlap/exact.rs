@@ -209,7 +209,7 @@ pub fn exact_overlap(query: &Frustum, candidate: &Frustum) -> f64 {
 /// depends on the two frusta only, so every caller gets the same number.
 pub fn overlap_unless_below(query: &Frustum, candidate: &Frustum, floor: f64) -> Option<f64> {
     if !query.aabb().intersects(candidate.aabb()) {
-        return (0.0 >= floor - BELOW_MARGIN).then_some(0.0);
+        return zero_unless_below(floor);
     }
     overlap_within_unless_below(query, candidate.planes(), candidate.scale(), floor)
 }
@@ -218,13 +218,16 @@ pub fn overlap_unless_below(query: &Frustum, candidate: &Frustum, floor: f64) ->
 /// [`Frustum::scale`] (whose box is known to meet the query's): the index
 /// keeps these beside each member, so ranking reads no stored frame.
 pub(crate) fn overlap_within_unless_below(query: &Frustum, planes: &[Plane; 6], scale: f64, floor: f64) -> Option<f64> {
-    let zero = || (0.0 >= floor - BELOW_MARGIN).then_some(0.0);
-    let candidate_planes = planes;
     let eps = ON_PLANE * query.scale().max(scale);
     // Rounding in a partial volume must never reject a frame at its floor.
-    let volume = clipped_volume(query, candidate_planes, eps, (floor - BELOW_MARGIN) * query.volume())?;
+    let volume = clipped_volume(query, planes, eps, (floor - BELOW_MARGIN) * query.volume())?;
     let overlap = (volume / query.volume()).clamp(0.0, 1.0);
-    if overlap == 0.0 { zero() } else { (overlap >= floor - BELOW_MARGIN).then_some(overlap) }
+    if overlap == 0.0 { zero_unless_below(floor) } else { (overlap >= floor - BELOW_MARGIN).then_some(overlap) }
+}
+
+/// An overlap of exactly 0, unless `floor` rules it out.
+fn zero_unless_below(floor: f64) -> Option<f64> {
+    (0.0 >= floor - BELOW_MARGIN).then_some(0.0)
 }
 
 /// The volume of `query` inside every plane of `planes` (normals outward,
@@ -282,7 +285,7 @@ const TETRAHEDRA: [[usize; 4]; 6] = [[0, 1, 2, 6], [0, 2, 3, 6], [0, 3, 7, 6], [
 
 /// The volume of the hexahedron `corners` (frustum order) where the signed
 /// distance `d` (one per corner, to a plane, linear in space) is ≤ 0.
-pub fn halfspace_volume(corners: &[DVec3; 8], d: &[f64; 8]) -> f64 {
+fn halfspace_volume(corners: &[DVec3; 8], d: &[f64; 8]) -> f64 {
     TETRAHEDRA.iter().map(|t| tetrahedron_inside(t.map(|i| corners[i]), t.map(|i| d[i]))).sum()
 }
 
