@@ -140,6 +140,9 @@ struct Group {
     aabb: Aabb,
     /// The coarse group (3× the cell and the angle bins) that holds this one.
     coarse: usize,
+    /// The newest member's time, read for every group the tree finds
+    /// (kept here so that this reads no member).
+    newest_time: u64,
 }
 
 impl Group {
@@ -221,12 +224,13 @@ impl FrameMemory {
         let next_group = self.groups.len();
         let g = *self.group_index.entry(fine_key).or_insert(next_group);
         if g == next_group {
-            self.groups.push(Group { hull: Hull::new(&frame.frustum), members: Vec::new(), aabb: *frame.frustum.aabb(), coarse: c });
+            self.groups.push(Group { hull: Hull::new(&frame.frustum), members: Vec::new(), aabb: *frame.frustum.aabb(), coarse: c, newest_time: frame.time });
         }
         let group = &mut self.groups[g];
         let before = (!group.members.is_empty()).then(|| GroupBox { group: g, envelope: envelope(&group.aabb) });
         group.cover(&frame.frustum);
         let pos = group.members.partition_point(|m| newer_than(&m.slot));
+        group.newest_time = group.newest_time.max(frame.time);
         group.members.insert(pos, Member { slot, time: frame.time, aabb: *frame.frustum.aabb(), planes: *frame.frustum.planes(), scale: frame.frustum.scale() });
         let after = GroupBox { group: g, envelope: envelope(&group.aabb) };
         if before != Some(after) {
@@ -307,50 +311,61 @@ impl FrameMemory {
             } else {
                 (0..self.groups.len()).collect()
             };
-            // Best first: a queue of each group's next member (newest first)
-            // keyed by the best score that member could reach.
-            let upper = |bound: f64, member: &Member| policy.weights.score(bound, age(member.time, t_now));
+            // Best first: a queue of each group's next step keyed by the best
+            // score any of its remaining members could reach. A group enters
+            // with the trivial bound and is bounded lazily, coarse hull first,
+            // then its own, only when it reaches the head of the queue: by then
+            // `s*` has often risen past it and no clip is spent on it at all.
+            let upper = |bound: f64, time: u64| policy.weights.score(bound, age(time, t_now));
             let mut queue: BinaryHeap<Next> = BinaryHeap::with_capacity(groups.len());
             let mut coarse_bounds = vec![f64::NAN; self.coarse.len()];
             for g in groups {
                 let group = &self.groups[g];
                 stats.box_candidates += group.members.len();
-                let newest = group.members.len() - 1;
-                let newest_member = &group.members[newest];
-                if best.cannot_admit(upper(1.0, newest_member)) {
+                let newest = Stage::Member(group.members.len() - 1);
+                if !use_bounds {
+                    queue.push(Next { upper: upper(1.0, group.newest_time), bound: 1.0, group: g, stage: newest });
                     continue;
                 }
-                let bound = if use_bounds {
-                    let coarse = &mut coarse_bounds[group.coarse];
-                    if coarse.is_nan() {
-                        // Shared by groups of every age: clipped only as far as the newest frame needs.
-                        stats.group_bounds += 1;
-                        *coarse = self.coarse[group.coarse].overlap_bound(target, best.overlap_to_enter(&policy.weights, 0.0));
-                    }
-                    if best.cannot_admit(upper(*coarse, newest_member)) {
-                        continue;
-                    }
-                    if group.members.len() >= MIN_GROUP_FOR_BOUND {
-                        stats.group_bounds += 1;
-                        let floor = best.overlap_to_enter(&policy.weights, age(newest_member.time, t_now));
-                        group.hull.overlap_bound(target, floor).min(*coarse)
-                    } else {
-                        *coarse
-                    }
-                } else {
-                    1.0
-                };
-                queue.push(Next { upper: upper(bound, newest_member), bound, group: g, index: newest });
+                if best.cannot_admit(upper(1.0, group.newest_time)) {
+                    continue;
+                }
+                // Coarse bounds are few and shared by groups of every age, so
+                // they are taken at once (clipped only as far as the newest
+                // frame needs); a group's own bound waits for its turn.
+                let coarse = &mut coarse_bounds[group.coarse];
+                if coarse.is_nan() {
+                    stats.group_bounds += 1;
+                    *coarse = self.coarse[group.coarse].overlap_bound(target, best.overlap_to_enter(&policy.weights, 0.0));
+                }
+                let bound = *coarse;
+                if best.cannot_admit(upper(bound, group.newest_time)) {
+                    continue;
+                }
+                let stage = if group.members.len() >= MIN_GROUP_FOR_BOUND { Stage::Group } else { newest };
+                queue.push(Next { upper: upper(bound, group.newest_time), bound, group: g, stage });
             }
             while let Some(next) = queue.pop() {
                 if best.cannot_admit(next.upper) {
-                    break; // every member still queued has a lower bound
+                    break; // everything still queued has a lower bound
                 }
-                let members = &self.groups[next.group].members;
-                let member = &members[next.index];
+                let group = &self.groups[next.group];
+                let index = match next.stage {
+                    Stage::Group => {
+                        stats.group_bounds += 1;
+                        let floor = best.overlap_to_enter(&policy.weights, age(group.newest_time, t_now));
+                        let bound = group.hull.overlap_bound(target, floor).min(next.bound);
+                        queue.push(Next { upper: upper(bound, group.newest_time), bound, stage: Stage::Member(group.members.len() - 1), ..next });
+                        continue;
+                    }
+                    Stage::Member(index) => index,
+                };
+                let members = &group.members;
+                let member = &members[index];
                 let slot = member.slot;
-                if next.index > 0 {
-                    queue.push(Next { upper: upper(next.bound, &members[next.index - 1]), index: next.index - 1, ..next });
+                if index > 0 {
+                    let older = &members[index - 1];
+                    queue.push(Next { upper: upper(next.bound, older.time), stage: Stage::Member(index - 1), ..next });
                 }
                 if Some(slot) == pinned || !meets_box(&member.aabb) || warm.contains(&slot) {
                     continue;
@@ -389,14 +404,22 @@ impl FrameMemory {
     }
 }
 
-/// A group's next unvisited member and the best score it could reach.
+/// A group's next step and the best score any of its remaining members could reach.
 #[derive(Clone, Copy)]
 struct Next {
     upper: f64,
+    /// The tightest bound on the group's overlaps found so far.
     bound: f64,
     group: usize,
-    /// Position in the group's `members` (oldest first).
-    index: usize,
+    stage: Stage,
+}
+
+#[derive(Clone, Copy)]
+enum Stage {
+    /// Bound the group by its own hull.
+    Group,
+    /// Evaluate the member at this position in `members` (oldest first).
+    Member(usize),
 }
 
 impl PartialEq for Next {

@@ -251,11 +251,17 @@ pub fn clipped_volume(query: &Frustum, planes: &[Plane], eps: f64, floor_volume:
         return Some(query.volume());
     }
     cutting.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
-    // The query's volume inside one plane, in closed form, already bounds the
-    // volume inside all of them: most frames that cannot enter are proved so
-    // by the deepest planes without building a polytope.
-    if floor_volume > 0.0 && cutting.len() > 1 && cutting.iter().take(SINGLE_PLANE_TRIES).any(|&(_, i)| halfspace_volume(query.corners(), &distances[i]) < floor_volume) {
-        return None;
+    // The query's volume inside one plane, or inside the two deepest at once,
+    // in closed form, already bounds the volume inside all of them: most
+    // frames that cannot enter are proved so without building a polytope.
+    if floor_volume > 0.0 && cutting.len() > 1 {
+        let tetrahedra = Tetrahedra::of(query.corners());
+        if cutting.iter().take(SINGLE_PLANE_TRIES).any(|&(_, i)| tetrahedra.inside(&distances[i]) < floor_volume) {
+            return None;
+        }
+        if cutting.len() > 2 && tetrahedra.inside_both(&distances[cutting[0].1], &distances[cutting[1].1]) < floor_volume {
+            return None;
+        }
     }
     let mut poly = Polytope::from_frustum(query);
     for (n, &(_, i)) in cutting.iter().enumerate() {
@@ -283,10 +289,87 @@ const SINGLE_PLANE_TRIES: usize = 2;
 /// the diagonal is one tetrahedron.
 const TETRAHEDRA: [[usize; 4]; 6] = [[0, 1, 2, 6], [0, 2, 3, 6], [0, 3, 7, 6], [0, 7, 4, 6], [0, 4, 5, 6], [0, 5, 1, 6]];
 
-/// The volume of the hexahedron `corners` (frustum order) where the signed
-/// distance `d` (one per corner, to a plane, linear in space) is ≤ 0.
-fn halfspace_volume(corners: &[DVec3; 8], d: &[f64; 8]) -> f64 {
-    TETRAHEDRA.iter().map(|t| tetrahedron_inside(t.map(|i| corners[i]), t.map(|i| d[i]))).sum()
+/// A frustum (any hexahedron in frustum corner order) as [`TETRAHEDRA`], with
+/// their volumes, for volumes inside planes in closed form.
+struct Tetrahedra<'a> {
+    corners: &'a [DVec3; 8],
+    volumes: [f64; 6],
+}
+
+impl<'a> Tetrahedra<'a> {
+    fn of(corners: &'a [DVec3; 8]) -> Self {
+        Tetrahedra { corners, volumes: TETRAHEDRA.map(|[a, b, c, d]| tetrahedron_volume(corners[a], corners[b], corners[c], corners[d])) }
+    }
+
+    /// The volume where the signed distance `d` (one per corner, to a plane,
+    /// linear in space) is ≤ 0.
+    fn inside(&self, d: &[f64; 8]) -> f64 {
+        TETRAHEDRA.iter().zip(&self.volumes).map(|(t, v)| v * fraction_inside(t.map(|i| d[i]))).sum()
+    }
+
+    /// The volume where both `a` and `b` are ≤ 0: each tetrahedron's part
+    /// inside `a`, cut into tetrahedra, then each of those cut by `b`.
+    fn inside_both(&self, a: &[f64; 8], b: &[f64; 8]) -> f64 {
+        let mut volume = 0.0;
+        for (t, whole) in TETRAHEDRA.iter().zip(&self.volumes) {
+            let (da, db) = (t.map(|i| a[i]), t.map(|i| b[i]));
+            match (fraction_inside(da), fraction_inside(db)) {
+                (0.0, _) | (_, 0.0) => {}
+                (1.0, f) | (f, 1.0) => volume += whole * f,
+                _ => {
+                    for (v, e) in tetrahedra_inside(t.map(|i| self.corners[i]), da, db) {
+                        volume += tetrahedron_inside(v, e);
+                    }
+                }
+            }
+        }
+        volume
+    }
+}
+
+/// The part of tetrahedron `v` where the linear function with values `d` at
+/// its vertices is ≤ 0, as at most three tetrahedra, each with the values
+/// of a second linear function `e` at its vertices (interpolated, as `e` is
+/// linear along every edge).
+fn tetrahedra_inside(v: [DVec3; 4], d: [f64; 4], e: [f64; 4]) -> SmallVec<[([DVec3; 4], [f64; 4]); 3]> {
+    let inside = d.map(|x| x <= 0.0);
+    let count = inside.iter().filter(|&&i| i).count();
+    // Where the plane crosses the edge from vertex i to vertex j, and `e` there.
+    let cross = |i: usize, j: usize| {
+        let s = d[i] / (d[i] - d[j]);
+        (v[i] + (v[j] - v[i]) * s, e[i] + (e[j] - e[i]) * s)
+    };
+    let mut out = SmallVec::new();
+    match count {
+        0 => {}
+        4 => out.push((v, e)),
+        1 => {
+            let lone = (0..4).find(|&i| inside[i]).expect("one vertex inside");
+            let o: SmallVec<[usize; 3]> = (0..4).filter(|&i| i != lone).collect();
+            let [(p, ep), (q, eq), (r, er)] = [cross(lone, o[0]), cross(lone, o[1]), cross(lone, o[2])];
+            out.push(([v[lone], p, q, r], [e[lone], ep, eq, er]));
+        }
+        _ => {
+            // A prism between the triangle of inside vertices (or, with two
+            // inside, each inside vertex's two crossings) and its image: three
+            // inside (x, y, z) map to their crossings towards the outside one;
+            // two inside (a, b) give triangles (a, ac, ae) and (b, bc, be).
+            let i: SmallVec<[usize; 3]> = (0..4).filter(|&k| inside[k]).collect();
+            let o: SmallVec<[usize; 2]> = (0..4).filter(|&k| !inside[k]).collect();
+            let (bottom, top) = if count == 3 {
+                let [x, y, z] = [i[0], i[1], i[2]];
+                ([(v[x], e[x]), (v[y], e[y]), (v[z], e[z])], [cross(x, o[0]), cross(y, o[0]), cross(z, o[0])])
+            } else {
+                let (a, b) = (i[0], i[1]);
+                ([(v[a], e[a]), cross(a, o[0]), cross(a, o[1])], [(v[b], e[b]), cross(b, o[0]), cross(b, o[1])])
+            };
+            // Prism (x, y, z) / (x', y', z') as tetrahedra (x, y, z, x'), (y, z, x', y'), (z, x', y', z').
+            for [p, q, r, s] in [[bottom[0], bottom[1], bottom[2], top[0]], [bottom[1], bottom[2], top[0], top[1]], [bottom[2], top[0], top[1], top[2]]] {
+                out.push(([p.0, q.0, r.0, s.0], [p.1, q.1, r.1, s.1]));
+            }
+        }
+    }
+    out
 }
 
 fn tetrahedron_volume(a: DVec3, b: DVec3, c: DVec3, d: DVec3) -> f64 {
@@ -296,28 +379,40 @@ fn tetrahedron_volume(a: DVec3, b: DVec3, c: DVec3, d: DVec3) -> f64 {
 /// The part of tetrahedron `v` where the linear function with values `d` at
 /// its vertices is ≤ 0.
 fn tetrahedron_inside(v: [DVec3; 4], d: [f64; 4]) -> f64 {
+    match fraction_inside(d) {
+        0.0 => 0.0,
+        f => f * tetrahedron_volume(v[0], v[1], v[2], v[3]),
+    }
+}
+
+/// The share of a tetrahedron's volume where the linear function with
+/// values `d` at its vertices is ≤ 0. A vertex tetrahedron cut off by the
+/// plane is the whole one scaled by where the plane crosses its three
+/// edges (`s = d_i / (d_i − d_j)` along each), so no coordinates are needed.
+fn fraction_inside(d: [f64; 4]) -> f64 {
     let inside = d.map(|x| x <= 0.0);
     let count = inside.iter().filter(|&&i| i).count();
-    // Where the plane crosses the edge from vertex i to vertex j.
-    let cross = |i: usize, j: usize| v[i] + (v[j] - v[i]) * (d[i] / (d[i] - d[j]));
+    // How far along the edge from vertex i to vertex j the plane crosses it.
+    let s = |i: usize, j: usize| d[i] / (d[i] - d[j]);
+    let corner = |lone: usize| {
+        let [p, q, r] = [(lone + 1) % 4, (lone + 2) % 4, (lone + 3) % 4];
+        s(lone, p) * s(lone, q) * s(lone, r)
+    };
     match count {
         0 => 0.0,
-        4 => tetrahedron_volume(v[0], v[1], v[2], v[3]),
-        1 | 3 => {
-            // A corner tetrahedron cut off at one vertex: inside it (1) or outside (3).
-            let lone = (0..4).find(|&i| inside[i] == (count == 1)).expect("one vertex on its own side");
-            let o: SmallVec<[usize; 3]> = (0..4).filter(|&i| i != lone).collect();
-            let corner = tetrahedron_volume(v[lone], cross(lone, o[0]), cross(lone, o[1]), cross(lone, o[2]));
-            if count == 1 { corner } else { tetrahedron_volume(v[0], v[1], v[2], v[3]) - corner }
-        }
+        4 => 1.0,
+        1 => corner(inside.iter().position(|&i| i).expect("one vertex inside")),
+        3 => 1.0 - corner(inside.iter().position(|&i| !i).expect("one vertex outside")),
         _ => {
-            // Two inside (a, b), two outside (c, e): a prism with triangles
-            // (a, ac, ae) and (b, bc, be), split into three tetrahedra.
-            let i: SmallVec<[usize; 2]> = (0..4).filter(|&k| inside[k]).collect();
-            let o: SmallVec<[usize; 2]> = (0..4).filter(|&k| !inside[k]).collect();
-            let (a, b) = (v[i[0]], v[i[1]]);
-            let (ac, ae, bc, be) = (cross(i[0], o[0]), cross(i[0], o[1]), cross(i[1], o[0]), cross(i[1], o[1]));
-            tetrahedron_volume(a, ac, ae, b) + tetrahedron_volume(ac, ae, b, bc) + tetrahedron_volume(ae, b, bc, be)
+            // Inside a, b; outside c, e: the prism (a, ac, ae) / (b, bc, be)
+            // as three tetrahedra, (a, ac, ae, b), (ac, ae, b, bc) and
+            // (ae, b, bc, be), whose shares of the whole are these products.
+            let mut i = (0..4).filter(|&k| inside[k]);
+            let mut o = (0..4).filter(|&k| !inside[k]);
+            let (a, b) = (i.next().expect("two inside"), i.next().expect("two inside"));
+            let (c, e) = (o.next().expect("two outside"), o.next().expect("two outside"));
+            let (s1, s2, s3, s4) = (s(a, c), s(a, e), s(b, c), s(b, e));
+            s1 * s2 + s2 * s3 * (1.0 - s1) + s3 * s4 * (1.0 - s2)
         }
     }
 }
@@ -397,7 +492,30 @@ mod tests {
             let plane = Plane { normal, offset: normal.dot(point) };
             let mut poly = Polytope::from_frustum(&f);
             poly.clip(&plane, 0.0);
-            let closed = halfspace_volume(f.corners(), &f.corners().map(|c| plane.distance(c)));
+            let closed = Tetrahedra::of(f.corners()).inside(&f.corners().map(|c| plane.distance(c)));
+            assert!((closed - poly.volume()).abs() <= 1e-9 * f.volume(), "case {case}: {closed} vs {}", poly.volume());
+        }
+    }
+
+    #[test]
+    fn the_closed_form_volume_inside_two_planes_is_the_clipped_volume() {
+        let mut rng = crate::rng::SplitMix64::new(4);
+        let mut u = move || rng.next_f64();
+        for case in 0..2000 {
+            let rot = DMat3::from_euler(glam::EulerRot::YXZ, 6.3 * u(), 1.2 * (u() - 0.5), 0.3 * (u() - 0.5));
+            let f = at(rot, DVec3::new(4.0 * u(), 60.0 + 4.0 * u(), 4.0 * u()), 0.1 + u(), 5.0 + 30.0 * u());
+            let b = f.aabb();
+            let mut plane = || {
+                let point = b.min + (b.max - b.min) * DVec3::new(u(), u(), u());
+                let normal = DVec3::new(u() - 0.5, u() - 0.5, u() - 0.5).normalize();
+                Plane { normal, offset: normal.dot(point) }
+            };
+            let (p, q) = (plane(), plane());
+            let mut poly = Polytope::from_frustum(&f);
+            poly.clip(&p, 0.0);
+            poly.clip(&q, 0.0);
+            let distances = |plane: &Plane| f.corners().map(|c| plane.distance(c));
+            let closed = Tetrahedra::of(f.corners()).inside_both(&distances(&p), &distances(&q));
             assert!((closed - poly.volume()).abs() <= 1e-9 * f.volume(), "case {case}: {closed} vs {}", poly.volume());
         }
     }
