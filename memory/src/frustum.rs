@@ -54,6 +54,16 @@ impl Aabb {
     }
 }
 
+/// The frustum as six tetrahedra around its diagonal from corner 0 to corner
+/// 6: every face of the frustum holds one of the two, so each face splits
+/// into two triangles through it, and each triangle with the opposite end of
+/// the diagonal is one tetrahedron.
+pub const TETRAHEDRA: [[usize; 4]; 6] = [[0, 1, 2, 6], [0, 2, 3, 6], [0, 3, 7, 6], [0, 7, 4, 6], [0, 4, 5, 6], [0, 5, 1, 6]];
+
+pub(crate) fn tetrahedron_volume(a: DVec3, b: DVec3, c: DVec3, d: DVec3) -> f64 {
+    (b - a).cross(c - a).dot(d - a).abs() / 6.0
+}
+
 /// Corner order: near plane then far plane, each top-left, top-right,
 /// bottom-right, bottom-left as seen in the image.
 pub const FACES: [[usize; 4]; 6] = [
@@ -72,6 +82,8 @@ pub struct Frustum {
     corners: [DVec3; 8],
     planes: [Plane; 6],
     volume: f64,
+    /// The volumes of its [`TETRAHEDRA`] (closed-form volumes inside planes read them).
+    tetrahedra: [f64; 6],
     aabb: Aabb,
     local_shape: ConvexPolyhedron,
 }
@@ -106,7 +118,8 @@ impl Frustum {
         let local_shape = ConvexPolyhedron::from_convex_hull(&hull).ok_or_else(|| {
             InputError::invalid("intrinsics", "frustum is degenerate in single precision (check near, far and focal lengths)")
         })?;
-        Ok(Frustum { pose, intrinsics: k, corners, planes, volume, aabb: Aabb::from_points(&corners), local_shape })
+        let tetrahedra = TETRAHEDRA.map(|[a, b, c, d]| tetrahedron_volume(local[a], local[b], local[c], local[d]));
+        Ok(Frustum { pose, intrinsics: k, corners, planes, volume, tetrahedra, aabb: Aabb::from_points(&corners), local_shape })
     }
 
     pub fn pose(&self) -> &Pose {
@@ -128,6 +141,11 @@ impl Frustum {
     }
 
     /// Exact volume of the truncated pyramid.
+    /// The volumes of its [`TETRAHEDRA`].
+    pub fn tetrahedra(&self) -> &[f64; 6] {
+        &self.tetrahedra
+    }
+
     pub fn volume(&self) -> f64 {
         self.volume
     }

@@ -39,7 +39,7 @@ use rstar::{AABB, RTree, RTreeObject};
 
 use crate::error::InputError;
 use crate::frustum::{Aabb, Frustum, Plane};
-use crate::overlap::{Estimator, clipped_volume};
+use crate::overlap::{Estimator, Need, clipped_volume};
 use crate::policy::{ContextPlan, MemoryFrame, Policy, Ranking, SelectedFrame, age, rank_order, select_among};
 
 /// A group's box in the R-tree.
@@ -111,10 +111,12 @@ impl Hull {
     }
 
     /// An upper bound on the overlap of `target` with any member; once it
-    /// is proved below `floor`, a looser bound that is still below it.
+    /// is proved below `floor`, a looser bound that is still below it, and
+    /// once proved to reach it, possibly a looser one in closed form (loose
+    /// bounds prune fewer old members, but clipping every hull costs more).
     fn overlap_bound(&self, target: &Frustum, floor: f64) -> f64 {
         let floor_volume = (floor - 2.0 * BOUND_MARGIN) * target.volume();
-        let volume = clipped_volume(target, &self.planes, 0.0, floor_volume).unwrap_or(floor_volume);
+        let volume = clipped_volume(target, &self.planes, 0.0, floor_volume, Need::Bound).unwrap_or(floor_volume);
         (volume / target.volume()).clamp(0.0, 1.0) + BOUND_MARGIN
     }
 }
@@ -360,27 +362,40 @@ impl FrameMemory {
                     }
                     Stage::Member(index) => index,
                 };
+                // Members newest first, staying in this group while its next
+                // member still ranks at least as high as the queue's head (the
+                // heap is touched once per switch of group, not per member).
                 let members = &group.members;
-                let member = &members[index];
-                let slot = member.slot;
-                if index > 0 {
-                    let older = &members[index - 1];
-                    queue.push(Next { upper: upper(next.bound, older.time), stage: Stage::Member(index - 1), ..next });
-                }
-                if Some(slot) == pinned || !meets_box(&member.aabb) || warm.contains(&slot) {
-                    continue;
-                }
-                stats.overlap_evaluations += 1;
-                if use_bounds {
-                    // The clip stops once it proves this frame cannot enter.
-                    let floor = best.overlap_to_enter(&policy.weights, age(member.time, t_now));
-                    // Its box meets the target's (checked above): the planes beside it are all the clip needs.
-                    match crate::overlap::overlap_within_unless_below(target, &member.planes, member.scale, floor) {
-                        Some(o) => best.push(describe(slot, o)),
-                        None => stats.cut_short += 1,
+                let mut index = index;
+                loop {
+                    let member = &members[index];
+                    let slot = member.slot;
+                    if Some(slot) != pinned && meets_box(&member.aabb) && !warm.contains(&slot) {
+                        stats.overlap_evaluations += 1;
+                        if use_bounds {
+                            // The clip stops once it proves this frame cannot enter.
+                            let floor = best.overlap_to_enter(&policy.weights, age(member.time, t_now));
+                            // Its box meets the target's (checked above): the planes beside it are all the clip needs.
+                            match crate::overlap::overlap_within_unless_below(target, &member.planes, member.scale, floor) {
+                                Some(o) => best.push(describe(slot, o)),
+                                None => stats.cut_short += 1,
+                            }
+                        } else {
+                            best.push(describe(slot, overlap_of(&self.frames[slot])));
+                        }
                     }
-                } else {
-                    best.push(describe(slot, overlap_of(&self.frames[slot])));
+                    if index == 0 {
+                        break;
+                    }
+                    index -= 1;
+                    let older = Next { upper: upper(next.bound, members[index].time), stage: Stage::Member(index), ..next };
+                    if best.cannot_admit(older.upper) {
+                        break; // older members score lower still
+                    }
+                    if queue.peek().is_some_and(|head| head.upper > older.upper) {
+                        queue.push(older);
+                        break;
+                    }
                 }
             }
             // Zero-overlap frames: scores need no geometry, newest is best.

@@ -11,7 +11,7 @@
 use glam::DVec3;
 use smallvec::SmallVec;
 
-use crate::frustum::{FACES, Frustum, Plane};
+use crate::frustum::{FACES, Frustum, Plane, TETRAHEDRA};
 
 /// Relative tolerance for "on the plane".
 const ON_PLANE: f64 = 1e-10;
@@ -38,10 +38,23 @@ pub struct Polytope {
 
 impl Polytope {
     pub fn from_frustum(f: &Frustum) -> Polytope {
+        let mut poly = Polytope::default();
+        poly.set_frustum(f);
+        poly
+    }
+
+    /// Becomes the frustum `f`, in place (a polytope is a few kilobytes
+    /// inline, so building one per clip and moving it costs a copy).
+    pub fn set_frustum(&mut self, f: &Frustum) {
         let c = f.corners();
-        let points = FACES.iter().flat_map(|face| face.iter().map(|&i| c[i])).collect();
-        let faces = (0..FACES.len() as u16).map(|i| (4 * i, 4)).collect();
-        Polytope { buffers: [(points, faces), Default::default()], current: 0 }
+        self.current = 0;
+        let (points, faces) = &mut self.buffers[0];
+        points.clear();
+        faces.clear();
+        for (i, face) in FACES.iter().enumerate() {
+            points.extend(face.iter().map(|&k| c[k]));
+            faces.push((4 * i as u16, 4));
+        }
     }
 
     fn points(&self) -> &Points {
@@ -220,7 +233,7 @@ pub fn overlap_unless_below(query: &Frustum, candidate: &Frustum, floor: f64) ->
 pub(crate) fn overlap_within_unless_below(query: &Frustum, planes: &[Plane; 6], scale: f64, floor: f64) -> Option<f64> {
     let eps = ON_PLANE * query.scale().max(scale);
     // Rounding in a partial volume must never reject a frame at its floor.
-    let volume = clipped_volume(query, planes, eps, (floor - BELOW_MARGIN) * query.volume())?;
+    let volume = clipped_volume(query, planes, eps, (floor - BELOW_MARGIN) * query.volume(), Need::Exact)?;
     let overlap = (volume / query.volume()).clamp(0.0, 1.0);
     if overlap == 0.0 { zero_unless_below(floor) } else { (overlap >= floor - BELOW_MARGIN).then_some(overlap) }
 }
@@ -230,18 +243,30 @@ fn zero_unless_below(floor: f64) -> Option<f64> {
     (0.0 >= floor - BELOW_MARGIN).then_some(0.0)
 }
 
+/// What a caller of [`clipped_volume`] needs once the volume is not below its floor.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Need {
+    /// The volume itself, computed the same way whatever the floor.
+    Exact,
+    /// Any upper bound on it (a group hull's): once the volume is proved to
+    /// reach the floor, a looser bound in closed form will do.
+    Bound,
+}
+
 /// The volume of `query` inside every plane of `planes` (normals outward,
-/// tolerance `eps`), or `None` once clipping proves it below `floor_volume`.
+/// tolerance `eps`), or `None` once it is proved below `floor_volume`.
 /// Planes are applied deepest cut first (by how far the query's corners lie
 /// beyond each), so the volume falls fastest; a plane that leaves every
 /// corner inside cuts nothing and is skipped (the query is their hull). The
 /// order depends on the inputs only, so every caller gets the same number.
-pub fn clipped_volume(query: &Frustum, planes: &[Plane], eps: f64, floor_volume: f64) -> Option<f64> {
+/// With [`Need::Bound`] the answer may be an upper bound settled in closed
+/// form, without clipping.
+pub fn clipped_volume(query: &Frustum, planes: &[Plane], eps: f64, floor_volume: f64, need: Need) -> Option<f64> {
     let mut cutting: SmallVec<[(f64, usize); 12]> = SmallVec::new();
     let mut distances: SmallVec<[[f64; 8]; 12]> = SmallVec::new();
     for (i, plane) in planes.iter().enumerate() {
         let d = query.corners().map(|c| plane.distance(c));
-        let depth: f64 = d.iter().filter(|&&x| x > eps).sum();
+        let depth: f64 = d.iter().map(|&x| if x > eps { x } else { 0.0 }).sum();
         if depth > 0.0 {
             cutting.push((depth, i));
         }
@@ -250,20 +275,36 @@ pub fn clipped_volume(query: &Frustum, planes: &[Plane], eps: f64, floor_volume:
     if cutting.is_empty() {
         return Some(query.volume());
     }
-    cutting.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
+    cutting.sort_unstable_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
     // The query's volume inside one plane, or inside the two deepest at once,
     // in closed form, already bounds the volume inside all of them: most
     // frames that cannot enter are proved so without building a polytope.
     if floor_volume > 0.0 && cutting.len() > 1 {
-        let tetrahedra = Tetrahedra::of(query.corners());
-        if cutting.iter().take(SINGLE_PLANE_TRIES).any(|&(_, i)| tetrahedra.inside(&distances[i]) < floor_volume) {
-            return None;
+        let tetrahedra = Tetrahedra::of(query);
+        let mut upper = f64::INFINITY;
+        for &(_, i) in cutting.iter().take(SINGLE_PLANE_TRIES) {
+            upper = upper.min(tetrahedra.inside(&distances[i]));
+            if upper < floor_volume {
+                return None;
+            }
         }
-        if cutting.len() > 2 && tetrahedra.inside_both(&distances[cutting[0].1], &distances[cutting[1].1]) < floor_volume {
-            return None;
+        if cutting.len() > 2 {
+            upper = upper.min(tetrahedra.inside_both(&distances[cutting[0].1], &distances[cutting[1].1]));
+            if upper < floor_volume {
+                return None;
+            }
+        }
+        // What each plane cuts off, added up, is at least what all of them
+        // cut off together: the volume left is at least the rest.
+        if need == Need::Bound {
+            let cut_off: f64 = cutting.iter().map(|&(_, i)| query.volume() - tetrahedra.inside(&distances[i])).sum();
+            if query.volume() - cut_off >= floor_volume {
+                return Some(upper);
+            }
         }
     }
-    let mut poly = Polytope::from_frustum(query);
+    let mut poly = Polytope::default();
+    poly.set_frustum(query);
     for (n, &(_, i)) in cutting.iter().enumerate() {
         let cut = poly.clip(&planes[i], eps);
         if poly.is_empty() {
@@ -283,35 +324,30 @@ const BELOW_MARGIN: f64 = 1e-9;
 /// Planes (deepest cut first) whose closed-form bound is tried before clipping.
 const SINGLE_PLANE_TRIES: usize = 2;
 
-/// The frustum as six tetrahedra around its diagonal from corner 0 to corner
-/// 6: every face of the frustum holds one of the two, so each face splits
-/// into two triangles through it, and each triangle with the opposite end of
-/// the diagonal is one tetrahedron.
-const TETRAHEDRA: [[usize; 4]; 6] = [[0, 1, 2, 6], [0, 2, 3, 6], [0, 3, 7, 6], [0, 7, 4, 6], [0, 4, 5, 6], [0, 5, 1, 6]];
 
-/// A frustum (any hexahedron in frustum corner order) as [`TETRAHEDRA`], with
-/// their volumes, for volumes inside planes in closed form.
+/// A frustum as its [`TETRAHEDRA`], with their volumes, for volumes inside
+/// planes in closed form.
 struct Tetrahedra<'a> {
     corners: &'a [DVec3; 8],
-    volumes: [f64; 6],
+    volumes: &'a [f64; 6],
 }
 
 impl<'a> Tetrahedra<'a> {
-    fn of(corners: &'a [DVec3; 8]) -> Self {
-        Tetrahedra { corners, volumes: TETRAHEDRA.map(|[a, b, c, d]| tetrahedron_volume(corners[a], corners[b], corners[c], corners[d])) }
+    fn of(f: &'a Frustum) -> Self {
+        Tetrahedra { corners: f.corners(), volumes: f.tetrahedra() }
     }
 
     /// The volume where the signed distance `d` (one per corner, to a plane,
     /// linear in space) is ≤ 0.
     fn inside(&self, d: &[f64; 8]) -> f64 {
-        TETRAHEDRA.iter().zip(&self.volumes).map(|(t, v)| v * fraction_inside(t.map(|i| d[i]))).sum()
+        TETRAHEDRA.iter().zip(self.volumes).map(|(t, v)| v * fraction_inside(t.map(|i| d[i]))).sum()
     }
 
     /// The volume where both `a` and `b` are ≤ 0: each tetrahedron's part
     /// inside `a`, cut into tetrahedra, then each of those cut by `b`.
     fn inside_both(&self, a: &[f64; 8], b: &[f64; 8]) -> f64 {
         let mut volume = 0.0;
-        for (t, whole) in TETRAHEDRA.iter().zip(&self.volumes) {
+        for (t, whole) in TETRAHEDRA.iter().zip(self.volumes) {
             let (da, db) = (t.map(|i| a[i]), t.map(|i| b[i]));
             match (fraction_inside(da), fraction_inside(db)) {
                 (0.0, _) | (_, 0.0) => {}
@@ -372,16 +408,13 @@ fn tetrahedra_inside(v: [DVec3; 4], d: [f64; 4], e: [f64; 4]) -> SmallVec<[([DVe
     out
 }
 
-fn tetrahedron_volume(a: DVec3, b: DVec3, c: DVec3, d: DVec3) -> f64 {
-    (b - a).cross(c - a).dot(d - a).abs() / 6.0
-}
 
 /// The part of tetrahedron `v` where the linear function with values `d` at
 /// its vertices is ≤ 0.
 fn tetrahedron_inside(v: [DVec3; 4], d: [f64; 4]) -> f64 {
     match fraction_inside(d) {
         0.0 => 0.0,
-        f => f * tetrahedron_volume(v[0], v[1], v[2], v[3]),
+        f => f * crate::frustum::tetrahedron_volume(v[0], v[1], v[2], v[3]),
     }
 }
 
@@ -390,32 +423,54 @@ fn tetrahedron_inside(v: [DVec3; 4], d: [f64; 4]) -> f64 {
 /// plane is the whole one scaled by where the plane crosses its three
 /// edges (`s = d_i / (d_i − d_j)` along each), so no coordinates are needed.
 fn fraction_inside(d: [f64; 4]) -> f64 {
-    let inside = d.map(|x| x <= 0.0);
-    let count = inside.iter().filter(|&&i| i).count();
+    // Bit k set: vertex k inside. Called for every tetrahedron of every
+    // bound, so it looks the case up by the mask instead of counting.
+    let mask = (d[0] <= 0.0) as usize | ((d[1] <= 0.0) as usize) << 1 | ((d[2] <= 0.0) as usize) << 2 | ((d[3] <= 0.0) as usize) << 3;
+    let [a, b, c, e] = SPLITS[mask].map(usize::from);
     // How far along the edge from vertex i to vertex j the plane crosses it.
     let s = |i: usize, j: usize| d[i] / (d[i] - d[j]);
-    let corner = |lone: usize| {
-        let [p, q, r] = [(lone + 1) % 4, (lone + 2) % 4, (lone + 3) % 4];
-        s(lone, p) * s(lone, q) * s(lone, r)
-    };
-    match count {
+    match INSIDE_COUNT[mask] {
         0 => 0.0,
         4 => 1.0,
-        1 => corner(inside.iter().position(|&i| i).expect("one vertex inside")),
-        3 => 1.0 - corner(inside.iter().position(|&i| !i).expect("one vertex outside")),
+        // One vertex inside (a): the corner tetrahedron cut off at it.
+        1 => s(a, b) * s(a, c) * s(a, e),
+        // One vertex outside (e): the whole less the corner cut off at e.
+        3 => 1.0 - s(e, a) * s(e, b) * s(e, c),
         _ => {
             // Inside a, b; outside c, e: the prism (a, ac, ae) / (b, bc, be)
             // as three tetrahedra, (a, ac, ae, b), (ac, ae, b, bc) and
             // (ae, b, bc, be), whose shares of the whole are these products.
-            let mut i = (0..4).filter(|&k| inside[k]);
-            let mut o = (0..4).filter(|&k| !inside[k]);
-            let (a, b) = (i.next().expect("two inside"), i.next().expect("two inside"));
-            let (c, e) = (o.next().expect("two outside"), o.next().expect("two outside"));
             let (s1, s2, s3, s4) = (s(a, c), s(a, e), s(b, c), s(b, e));
             s1 * s2 + s2 * s3 * (1.0 - s1) + s3 * s4 * (1.0 - s2)
         }
     }
 }
+
+/// Vertices inside (bit set in the mask) per mask.
+const INSIDE_COUNT: [u8; 16] = [0, 1, 1, 2, 1, 2, 2, 3, 1, 2, 2, 3, 2, 3, 3, 4];
+
+/// Per mask, the four vertices with those inside first, each side in index order.
+const SPLITS: [[u8; 4]; 16] = {
+    let mut splits = [[0u8; 4]; 16];
+    let mut mask = 0;
+    while mask < 16 {
+        let mut n = 0;
+        let mut side = 0;
+        while side < 2 {
+            let mut k = 0;
+            while k < 4 {
+                if ((mask >> k) & 1 == 1) == (side == 0) {
+                    splits[mask][n] = k as u8;
+                    n += 1;
+                }
+                k += 1;
+            }
+            side += 1;
+        }
+        mask += 1;
+    }
+    splits
+};
 
 #[cfg(test)]
 mod tests {
@@ -492,7 +547,7 @@ mod tests {
             let plane = Plane { normal, offset: normal.dot(point) };
             let mut poly = Polytope::from_frustum(&f);
             poly.clip(&plane, 0.0);
-            let closed = Tetrahedra::of(f.corners()).inside(&f.corners().map(|c| plane.distance(c)));
+            let closed = Tetrahedra::of(&f).inside(&f.corners().map(|c| plane.distance(c)));
             assert!((closed - poly.volume()).abs() <= 1e-9 * f.volume(), "case {case}: {closed} vs {}", poly.volume());
         }
     }
@@ -515,7 +570,7 @@ mod tests {
             poly.clip(&p, 0.0);
             poly.clip(&q, 0.0);
             let distances = |plane: &Plane| f.corners().map(|c| plane.distance(c));
-            let closed = Tetrahedra::of(f.corners()).inside_both(&distances(&p), &distances(&q));
+            let closed = Tetrahedra::of(&f).inside_both(&distances(&p), &distances(&q));
             assert!((closed - poly.volume()).abs() <= 1e-9 * f.volume(), "case {case}: {closed} vs {}", poly.volume());
         }
     }

@@ -4,7 +4,7 @@
 mod exact;
 mod sampled;
 
-pub use exact::{Polytope, clipped_volume, exact_overlap, overlap_unless_below};
+pub use exact::{Need, Polytope, clipped_volume, exact_overlap, overlap_unless_below};
 pub(crate) use exact::overlap_within_unless_below;
 pub use sampled::{MonteCarlo, ViewSamples, WorldMemBall};
 use serde::{Deserialize, Serialize};
