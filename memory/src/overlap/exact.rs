@@ -281,9 +281,11 @@ pub fn clipped_volume(query: &Frustum, planes: &[Plane], eps: f64, floor_volume:
     // frames that cannot enter are proved so without building a polytope.
     if floor_volume > 0.0 && cutting.len() > 1 {
         let tetrahedra = Tetrahedra::of(query);
+        let mut inside: SmallVec<[f64; 12]> = SmallVec::new();
         let mut upper = f64::INFINITY;
         for &(_, i) in cutting.iter().take(SINGLE_PLANE_TRIES) {
-            upper = upper.min(tetrahedra.inside(&distances[i]));
+            inside.push(tetrahedra.inside(&distances[i]));
+            upper = upper.min(inside[inside.len() - 1]);
             if upper < floor_volume {
                 return None;
             }
@@ -294,10 +296,18 @@ pub fn clipped_volume(query: &Frustum, planes: &[Plane], eps: f64, floor_volume:
                 return None;
             }
         }
-        // What each plane cuts off, added up, is at least what all of them
-        // cut off together: the volume left is at least the rest.
+        // A bound may stop here once the volume is proved to reach the floor:
+        // what each plane cuts off, added up, is at least what all of them cut
+        // off together, so the volume is at least the rest.
         if need == Need::Bound {
-            let cut_off: f64 = cutting.iter().map(|&(_, i)| query.volume() - tetrahedra.inside(&distances[i])).sum();
+            for &(_, i) in &cutting[inside.len()..] {
+                inside.push(tetrahedra.inside(&distances[i]));
+                upper = upper.min(inside[inside.len() - 1]);
+            }
+            if upper < floor_volume {
+                return None;
+            }
+            let cut_off: f64 = inside.iter().map(|v| query.volume() - v).sum();
             if query.volume() - cut_off >= floor_volume {
                 return Some(upper);
             }
@@ -549,6 +559,55 @@ mod tests {
             poly.clip(&plane, 0.0);
             let closed = Tetrahedra::of(&f).inside(&f.corners().map(|c| plane.distance(c)));
             assert!((closed - poly.volume()).abs() <= 1e-9 * f.volume(), "case {case}: {closed} vs {}", poly.volume());
+        }
+    }
+
+    #[test]
+    fn a_bound_is_never_below_the_volume_and_rules_out_only_what_is_below_the_floor() {
+        let mut rng = crate::rng::SplitMix64::new(5);
+        let mut u = move || rng.next_f64();
+        let mut settled = 0;
+        for case in 0..3000 {
+            let mut frustum = |u: &mut dyn FnMut() -> f64| {
+                let rot = DMat3::from_euler(glam::EulerRot::YXZ, 0.8 * u(), 0.4 * (u() - 0.5), 0.0);
+                at(rot, DVec3::new(4.0 * u(), 60.0 + u(), 4.0 * u()), 0.1, 20.0 + 10.0 * u())
+            };
+            let (query, other) = (frustum(&mut u), frustum(&mut u));
+            // The other's planes, and every other case also the six axis planes
+            // around its corners, as a group hull has.
+            let mut planes = other.planes().to_vec();
+            if case % 2 == 1 {
+                for normal in [DVec3::X, DVec3::NEG_X, DVec3::Y, DVec3::NEG_Y, DVec3::Z, DVec3::NEG_Z] {
+                    planes.push(Plane { normal, offset: other.corners().iter().map(|c| normal.dot(*c)).fold(f64::MIN, f64::max) });
+                }
+            }
+            let exact = clipped_volume(&query, &planes, 0.0, f64::NEG_INFINITY, Need::Exact).expect("no floor");
+            let floor = exact * (0.5 + u());
+            let tolerance = 1e-9 * query.volume();
+            for need in [Need::Exact, Need::Bound] {
+                match clipped_volume(&query, &planes, 0.0, floor, need) {
+                    Some(v) if need == Need::Exact => assert!((v - exact).abs() <= tolerance, "case {case}: {v} vs {exact}"),
+                    Some(v) => {
+                        assert!(v >= exact - tolerance, "case {case}: bound {v} below the volume {exact}");
+                        settled += (v > exact + tolerance) as usize;
+                    }
+                    None => assert!(exact < floor + tolerance, "case {case}: {exact} ruled out below the floor {floor}"),
+                }
+            }
+        }
+        assert!(settled > 100, "only {settled} bounds were settled in closed form");
+    }
+
+    #[test]
+    fn the_case_tables_split_every_mask() {
+        for mask in 0..16usize {
+            let count = INSIDE_COUNT[mask] as usize;
+            assert_eq!(count, mask.count_ones() as usize);
+            let split = SPLITS[mask].map(usize::from);
+            let mut seen = split.to_vec();
+            seen.sort();
+            assert_eq!(seen, [0, 1, 2, 3], "mask {mask:04b}: every vertex once");
+            assert!(split.iter().enumerate().all(|(n, &k)| ((mask >> k) & 1 == 1) == (n < count)), "mask {mask:04b}: inside first");
         }
     }
 
