@@ -20,7 +20,8 @@ steps="${STEPS:-2337}"          # 20% of the baseline's 11,683 steps, as session
 threads="${THREADS:-1}"
 recipe="${RECIPE:---context-noise 0.7 --generated-level 0.3}"
 out="${OUT:-runs/recipe}"
-base=runs/base
+base="${BASE:-runs/base}"   # the baseline run the fine-tunes start from
+packed="${PACKED:-}"        # options for the packed variants only (--warp: the geometry input)
 bin=target/release/worldpack
 
 # name -> the policy whose plans it trains on, and options beyond the recipe.
@@ -66,7 +67,8 @@ PY
   local p=${policy[$name]}
   # shellcheck disable=SC2086
   ./scripts/model.sh train --data "$data" --run "$run" --policy "$p" --steps "$steps" \
-      --init-from "$base/cdit-baseline.pt" --threads "$threads" ${extra[$name]} $recipe
+      --init-from "$base/cdit-baseline.pt" --threads "$threads" ${extra[$name]} $recipe \
+      $([ "$name" = baseline_continued ] || echo "$packed")
   [ -f "$run/model/$p/manifest.json" ] ||
     ./scripts/model.sh export --run "$run" --policy "$p" --layouts "$p" --data data/val --out "$run/model/$p" --half --threads "$threads"
 }
