@@ -88,6 +88,10 @@ enum Command {
         /// The most steps one batched call serves.
         #[arg(long, default_value_t = 16, value_parser = clap::value_parser!(u64).range(1..=1024))]
         batch_max: u64,
+        /// Retention: delete sessions that no frame was written to for this many seconds
+        /// (swept every quarter of it, at most every minute; 0: keep them until deleted).
+        #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u64).range(0..=10 * 365 * 86_400))]
+        retain_idle_secs: u64,
     },
     /// Benchmarks (tables on stdout; --json for machines).
     Bench {
@@ -368,7 +372,7 @@ fn main() -> ExitCode {
                 report(sim::render_one(&out, seed, pose, biome, size, probe), "sim render")
             }
         },
-        Command::Serve { model, memory_only, model_backend, store, addr, provider, threads, steps, method, policy, max_queue, max_inflight, overlay_warp, covisible, batch_window_ms, batch_max } => {
+        Command::Serve { model, memory_only, model_backend, store, addr, provider, threads, steps, method, policy, max_queue, max_inflight, overlay_warp, covisible, batch_window_ms, batch_max, retain_idle_secs } => {
             let config = api::Config {
                 addr,
                 store,
@@ -384,6 +388,7 @@ fn main() -> ExitCode {
                 covisible,
                 batch_window: (batch_window_ms > 0).then(|| std::time::Duration::from_millis(batch_window_ms)),
                 batch_max: batch_max as usize,
+                retain_idle: (retain_idle_secs > 0).then(|| std::time::Duration::from_secs(retain_idle_secs)),
                 ..api::Config::default()
             };
             report(serve(config), "serve")

@@ -642,6 +642,54 @@ fn a_session_on_postgres_comes_back_whole() {
 }
 
 #[test]
+fn idle_sessions_expire_and_active_ones_stay_on_redb() {
+    idle_sessions_expire(&temp_store("retention"));
+}
+
+#[test]
+fn idle_sessions_expire_and_active_ones_stay_on_postgres() {
+    let pg = PgCluster::start("retention");
+    idle_sessions_expire(&pg.url());
+}
+
+/// With `--retain-idle-secs 2`, a session left alone is deleted, frames and
+/// all, while one stepped every ~0.3 s stays whole; both stay so after a restart.
+fn idle_sessions_expire(store: &Path) {
+    let s = Server::start(store, &["--retain-idle-secs", "2"]);
+    let create = || {
+        let (code, c) = s.post("/v1/sessions", &json!({ "synthetic": { "seed": 3 } }));
+        assert_eq!(code, 201, "{c}");
+        c["session"].as_u64().unwrap()
+    };
+    let (active, idle) = (create(), create());
+    let start = std::time::Instant::now();
+    let mut steps = 0;
+    let expired_after = loop {
+        let (code, r) = s.post(&format!("/v1/sessions/{active}/step"), &json!({ "action": { "forward": true } }));
+        assert_eq!(code, 200, "the active session is never expired: {r}");
+        steps += 1;
+        let (code, r) = s.get(&format!("/v1/sessions/{idle}"));
+        if code == 404 {
+            assert_eq!(r["error"]["field"], "session", "{r}");
+            break start.elapsed();
+        }
+        assert!(start.elapsed() < Duration::from_secs(15), "the idle session was not expired: {r}");
+        std::thread::sleep(Duration::from_millis(300));
+    };
+    assert!(expired_after >= Duration::from_secs(2), "expired after {expired_after:?}, before its 2 s were up");
+    let (code, _) = s.post(&format!("/v1/sessions/{idle}/step"), &json!({ "action": {} }));
+    assert_eq!(code, 404, "an expired session takes no more steps");
+    let metrics = String::from_utf8(s.bytes("/metrics")).unwrap();
+    assert!(metrics.contains("worldpack_sessions_expired_total 1\n"), "{metrics}");
+    s.kill();
+    // Without retention the survivor is whole and the expired one stays gone.
+    let s = Server::start(store, &[]);
+    let (code, r) = s.get(&format!("/v1/sessions/{active}"));
+    assert_eq!((code, r["frames"].as_u64()), (200, Some(steps + 1)), "{r}");
+    assert_eq!(s.get(&format!("/v1/sessions/{idle}")).0, 404);
+}
+
+#[test]
 fn the_openapi_document_describes_the_routes_and_docs_are_served_offline() {
     let s = Server::start(&temp_store("openapi"), &["--memory-only"]);
     let (code, doc) = s.get("/openapi.json");

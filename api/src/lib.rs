@@ -7,6 +7,7 @@ pub mod engine;
 pub mod error;
 pub mod openapi;
 pub mod postgres_store;
+mod retention;
 mod routes;
 pub mod session;
 pub mod store;
@@ -61,6 +62,9 @@ pub struct Config {
     /// up to this long into one call of at most `batch_max` items; None: off.
     pub batch_window: Option<Duration>,
     pub batch_max: usize,
+    /// Retention: sessions that no frame was written to for this long are
+    /// deleted (`retention`); None: kept until deleted.
+    pub retain_idle: Option<Duration>,
 }
 
 impl Default for Config {
@@ -82,6 +86,7 @@ impl Default for Config {
             covisible: false,
             batch_window: None,
             batch_max: 16,
+            retain_idle: None,
         }
     }
 }
@@ -98,6 +103,8 @@ pub(crate) struct Metrics {
     pub observes: AtomicU64,
     pub selects: AtomicU64,
     pub sessions_created: AtomicU64,
+    /// Sessions deleted by retention.
+    pub sessions_expired: AtomicU64,
     pub step_micros: AtomicU64,
     /// Reads of a shared store's new frames before a request (see `routes::catch_up`).
     pub catch_ups: AtomicU64,
@@ -166,6 +173,9 @@ impl Server {
             restored += 1;
             let slot = Slot { session: Arc::new(tokio::sync::Mutex::new(s)), waiting: AtomicUsize::new(0) };
             state.sessions.write().unwrap().insert(id, Arc::new(slot));
+        }
+        if let Some(idle) = config.retain_idle {
+            tokio::spawn(retention::expire_idle_sessions(state.clone(), idle));
         }
         let router = routes::router(state.clone())
             .layer(DefaultBodyLimit::max(config.max_body_bytes))

@@ -4,6 +4,7 @@
 //! (PostgreSQL's default `synchronous_commit = on` flushes the WAL first).
 
 use std::sync::Mutex;
+use std::time::Duration;
 
 use postgres::{Client, NoTls};
 
@@ -23,7 +24,9 @@ const MIGRATIONS: &[&str] = &["
         png BYTEA NOT NULL,
         depth_png16 BYTEA NOT NULL,     -- empty when none was given
         PRIMARY KEY (session, idx)
-    );"];
+    );", "
+    -- When the session's newest frame was written: what retention reads.
+    ALTER TABLE sessions ADD COLUMN written TIMESTAMPTZ NOT NULL DEFAULT now();"];
 
 /// Connections per server: requests on different sessions (a step's commit,
 /// another's catch-up) need not wait for one another's round trips.
@@ -122,11 +125,25 @@ impl PgStore {
         if !insert_frame(&mut txn, id(session)?, id(index)?, frame)? {
             return Err(StoreError::Taken { session, index });
         }
+        txn.execute("UPDATE sessions SET written = now() WHERE id = $1", &[&id(session)?]).map_err(db)?;
         txn.commit().map_err(db)
     }
 
     pub fn delete_session(&self, session: u64) -> Result<bool, StoreError> {
         Ok(self.client()?.execute("DELETE FROM sessions WHERE id = $1", &[&id(session)?]).map_err(db)? > 0)
+    }
+
+    pub fn idle_sessions(&self, idle: Duration) -> Result<Vec<u64>, StoreError> {
+        let rows = self
+            .client()?
+            .query("SELECT id FROM sessions WHERE written <= now() - make_interval(secs => $1) ORDER BY written", &[&idle.as_secs_f64()])
+            .map_err(db)?;
+        Ok(rows.iter().map(|r| r.get::<_, i64>(0) as u64).collect())
+    }
+
+    pub fn delete_if_idle(&self, session: u64, idle: Duration) -> Result<bool, StoreError> {
+        let sql = "DELETE FROM sessions WHERE id = $1 AND written <= now() - make_interval(secs => $2)";
+        Ok(self.client()?.execute(sql, &[&id(session)?, &idle.as_secs_f64()]).map_err(db)? > 0)
     }
 
     pub fn sessions(&self) -> Result<Vec<(u64, SessionRecord)>, StoreError> {

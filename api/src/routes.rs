@@ -228,6 +228,7 @@ pub async fn metrics(State(st): St) -> Response {
          # TYPE worldpack_observes_total counter\nworldpack_observes_total {}\n\
          # TYPE worldpack_selects_total counter\nworldpack_selects_total {}\n\
          # TYPE worldpack_sessions_created_total counter\nworldpack_sessions_created_total {}\n\
+         # TYPE worldpack_sessions_expired_total counter\nworldpack_sessions_expired_total {}\n\
          # TYPE worldpack_step_seconds_sum counter\nworldpack_step_seconds_sum {}\n\
          # TYPE worldpack_catch_ups_total counter\nworldpack_catch_ups_total {}\n\
          # TYPE worldpack_catch_up_seconds_sum counter\nworldpack_catch_up_seconds_sum {}\n\
@@ -239,6 +240,7 @@ pub async fn metrics(State(st): St) -> Response {
         g(&m.observes),
         g(&m.selects),
         g(&m.sessions_created),
+        g(&m.sessions_expired),
         g(&m.step_micros) as f64 / 1e6,
         g(&m.catch_ups),
         g(&m.catch_up_micros) as f64 / 1e6,

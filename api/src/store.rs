@@ -6,6 +6,7 @@
 //! acknowledged frame survives a crash.
 
 use std::path::Path;
+use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
 use redb::{Database, Durability, ReadableTable, TableDefinition};
 use serde::{Deserialize, Serialize};
@@ -16,6 +17,12 @@ const SESSIONS: TableDefinition<u64, &[u8]> = TableDefinition::new("sessions");
 const FRAMES: TableDefinition<(u64, u64), &[u8]> = TableDefinition::new("frames");
 /// "next_session" → the next session id.
 const COUNTERS: TableDefinition<&str, u64> = TableDefinition::new("counters");
+/// session id → when its newest frame was written (ms since the Unix epoch): what retention reads.
+const WRITTEN: TableDefinition<u64, u64> = TableDefinition::new("written");
+
+fn unix_ms(t: SystemTime) -> u64 {
+    t.duration_since(UNIX_EPOCH).map_or(0, |d| d.as_millis() as u64)
+}
 
 #[derive(Debug, thiserror::Error)]
 pub enum StoreError {
@@ -159,6 +166,17 @@ impl Store {
         each_backend!(self, s => s.sessions())
     }
 
+    /// Sessions with no frame written for `idle` or longer (retention's candidates).
+    pub fn idle_sessions(&self, idle: Duration) -> Result<Vec<u64>, StoreError> {
+        each_backend!(self, s => s.idle_sessions(idle))
+    }
+
+    /// Removes a session and its frames if no frame was written to it for
+    /// `idle` (one written since it was listed keeps it); says whether it did.
+    pub fn delete_if_idle(&self, id: u64, idle: Duration) -> Result<bool, StoreError> {
+        each_backend!(self, s => s.delete_if_idle(id, idle))
+    }
+
     /// Every frame of a session, in index order.
     pub fn frames(&self, session: u64) -> Result<Vec<FrameRecord>, StoreError> {
         self.frames_from(session, 0)
@@ -184,6 +202,18 @@ impl RedbStore {
         txn.open_table(SESSIONS).map_err(err)?;
         txn.open_table(FRAMES).map_err(err)?;
         txn.open_table(COUNTERS).map_err(err)?;
+        {
+            // Stores written before retention existed: their sessions count as written now.
+            let sessions = txn.open_table(SESSIONS).map_err(err)?;
+            let mut written = txn.open_table(WRITTEN).map_err(err)?;
+            let now = unix_ms(SystemTime::now());
+            for row in sessions.iter().map_err(err)? {
+                let id = row.map_err(err)?.0.value();
+                if written.get(id).map_err(err)?.is_none() {
+                    written.insert(id, now).map_err(err)?;
+                }
+            }
+        }
         txn.commit().map_err(err)?;
         Ok(RedbStore { db })
     }
@@ -204,6 +234,7 @@ impl RedbStore {
             counters.insert("next_session", id + 1).map_err(err)?;
             txn.open_table(SESSIONS).map_err(err)?.insert(id, serde_json::to_vec(record).map_err(err)?.as_slice()).map_err(err)?;
             txn.open_table(FRAMES).map_err(err)?.insert((id, 0), first.encode().as_slice()).map_err(err)?;
+            txn.open_table(WRITTEN).map_err(err)?.insert(id, unix_ms(SystemTime::now())).map_err(err)?;
             Ok(id)
         })
     }
@@ -215,6 +246,7 @@ impl RedbStore {
                 return Err(StoreError::Taken { session, index });
             }
             frames.insert((session, index), frame.encode().as_slice()).map_err(err)?;
+            txn.open_table(WRITTEN).map_err(err)?.insert(session, unix_ms(SystemTime::now())).map_err(err)?;
             Ok(())
         })
     }
@@ -227,11 +259,30 @@ impl RedbStore {
 
     /// Removes a session and its frames; false when there was none.
     pub fn delete_session(&self, id: u64) -> Result<bool, StoreError> {
+        self.write(|txn| remove_session(txn, id))
+    }
+
+    pub fn idle_sessions(&self, idle: Duration) -> Result<Vec<u64>, StoreError> {
+        let cutoff = unix_ms(SystemTime::now()).saturating_sub(idle.as_millis() as u64);
+        let txn = self.db.begin_read().map_err(err)?;
+        let mut out = Vec::new();
+        for row in txn.open_table(WRITTEN).map_err(err)?.iter().map_err(err)? {
+            let (id, written) = row.map_err(err)?;
+            if written.value() <= cutoff {
+                out.push(id.value());
+            }
+        }
+        Ok(out)
+    }
+
+    pub fn delete_if_idle(&self, id: u64, idle: Duration) -> Result<bool, StoreError> {
+        let cutoff = unix_ms(SystemTime::now()).saturating_sub(idle.as_millis() as u64);
         self.write(|txn| {
-            let existed = txn.open_table(SESSIONS).map_err(err)?.remove(id).map_err(err)?.is_some();
-            let mut frames = txn.open_table(FRAMES).map_err(err)?;
-            frames.retain_in((id, 0)..=(id, u64::MAX), |_, _| false).map_err(err)?;
-            Ok(existed)
+            let written = txn.open_table(WRITTEN).map_err(err)?.get(id).map_err(err)?.map(|v| v.value());
+            if written.is_none_or(|w| w > cutoff) {
+                return Ok(false);
+            }
+            remove_session(txn, id)
         })
     }
 
@@ -262,4 +313,12 @@ impl RedbStore {
         let table = txn.open_table(FRAMES).map_err(err)?;
         table.get((session, index)).map_err(err)?.map(|v| FrameRecord::decode(v.value())).transpose()
     }
+}
+
+/// Removes a session, its frames and its write time in `txn`; false when there was none.
+fn remove_session(txn: &redb::WriteTransaction, id: u64) -> Result<bool, StoreError> {
+    let existed = txn.open_table(SESSIONS).map_err(err)?.remove(id).map_err(err)?.is_some();
+    txn.open_table(FRAMES).map_err(err)?.retain_in((id, 0)..=(id, u64::MAX), |_, _| false).map_err(err)?;
+    txn.open_table(WRITTEN).map_err(err)?.remove(id).map_err(err)?;
+    Ok(existed)
 }
