@@ -544,21 +544,29 @@ mod tests {
     }
 
     #[test]
-    fn the_closed_form_volume_inside_a_plane_is_the_clipped_volume() {
+    fn the_closed_form_volumes_inside_one_and_two_planes_are_the_clipped_volumes() {
         let mut rng = crate::rng::SplitMix64::new(3);
         let mut u = move || rng.next_f64();
         for case in 0..2000 {
             let rot = DMat3::from_euler(glam::EulerRot::YXZ, 6.3 * u(), 1.2 * (u() - 0.5), 0.3 * (u() - 0.5));
             let f = at(rot, DVec3::new(4.0 * u(), 60.0 + 4.0 * u(), 4.0 * u()), 0.1 + u(), 5.0 + 30.0 * u());
-            // A plane through a random point of the frustum's box, random normal.
+            // Planes through random points of the frustum's box, random normals.
             let b = f.aabb();
-            let point = b.min + (b.max - b.min) * DVec3::new(u(), u(), u());
-            let normal = DVec3::new(u() - 0.5, u() - 0.5, u() - 0.5).normalize();
-            let plane = Plane { normal, offset: normal.dot(point) };
+            let mut plane = || {
+                let point = b.min + (b.max - b.min) * DVec3::new(u(), u(), u());
+                let normal = DVec3::new(u() - 0.5, u() - 0.5, u() - 0.5).normalize();
+                Plane { normal, offset: normal.dot(point) }
+            };
+            let (p, q) = (plane(), plane());
+            let distances = |plane: &Plane| f.corners().map(|c| plane.distance(c));
+            let tetrahedra = Tetrahedra::of(&f);
             let mut poly = Polytope::from_frustum(&f);
-            poly.clip(&plane, 0.0);
-            let closed = Tetrahedra::of(&f).inside(&f.corners().map(|c| plane.distance(c)));
-            assert!((closed - poly.volume()).abs() <= 1e-9 * f.volume(), "case {case}: {closed} vs {}", poly.volume());
+            poly.clip(&p, 0.0);
+            let one = tetrahedra.inside(&distances(&p));
+            assert!((one - poly.volume()).abs() <= 1e-9 * f.volume(), "case {case}, one plane: {one} vs {}", poly.volume());
+            poly.clip(&q, 0.0);
+            let two = tetrahedra.inside_both(&distances(&p), &distances(&q));
+            assert!((two - poly.volume()).abs() <= 1e-9 * f.volume(), "case {case}, two planes: {two} vs {}", poly.volume());
         }
     }
 
@@ -608,29 +616,6 @@ mod tests {
             seen.sort();
             assert_eq!(seen, [0, 1, 2, 3], "mask {mask:04b}: every vertex once");
             assert!(split.iter().enumerate().all(|(n, &k)| ((mask >> k) & 1 == 1) == (n < count)), "mask {mask:04b}: inside first");
-        }
-    }
-
-    #[test]
-    fn the_closed_form_volume_inside_two_planes_is_the_clipped_volume() {
-        let mut rng = crate::rng::SplitMix64::new(4);
-        let mut u = move || rng.next_f64();
-        for case in 0..2000 {
-            let rot = DMat3::from_euler(glam::EulerRot::YXZ, 6.3 * u(), 1.2 * (u() - 0.5), 0.3 * (u() - 0.5));
-            let f = at(rot, DVec3::new(4.0 * u(), 60.0 + 4.0 * u(), 4.0 * u()), 0.1 + u(), 5.0 + 30.0 * u());
-            let b = f.aabb();
-            let mut plane = || {
-                let point = b.min + (b.max - b.min) * DVec3::new(u(), u(), u());
-                let normal = DVec3::new(u() - 0.5, u() - 0.5, u() - 0.5).normalize();
-                Plane { normal, offset: normal.dot(point) }
-            };
-            let (p, q) = (plane(), plane());
-            let mut poly = Polytope::from_frustum(&f);
-            poly.clip(&p, 0.0);
-            poly.clip(&q, 0.0);
-            let distances = |plane: &Plane| f.corners().map(|c| plane.distance(c));
-            let closed = Tetrahedra::of(&f).inside_both(&distances(&p), &distances(&q));
-            assert!((closed - poly.volume()).abs() <= 1e-9 * f.volume(), "case {case}: {closed} vs {}", poly.volume());
         }
     }
 
