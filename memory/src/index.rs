@@ -319,9 +319,9 @@ impl FrameMemory {
             };
             // Best first: a queue of each group's next step keyed by the best
             // score any of its remaining members could reach. A group enters
-            // with the trivial bound and is bounded lazily, coarse hull first,
-            // then its own, only when it reaches the head of the queue: by then
-            // `s*` has often risen past it and no clip is spent on it at all.
+            // with its coarse group's bound; its own hull is clipped only when
+            // it reaches the head of the queue: by then `s*` has often risen
+            // past it and that clip is never spent.
             let upper = |bound: f64, time: u64| policy.weights.score(bound, age(time, t_now));
             let mut queue: BinaryHeap<Next> = BinaryHeap::with_capacity(groups.len());
             let mut coarse_bounds = vec![f64::NAN; self.coarse.len()];
@@ -337,8 +337,8 @@ impl FrameMemory {
                     continue;
                 }
                 // Coarse bounds are few and shared by groups of every age, so
-                // they are taken at once (clipped only as far as the newest
-                // frame needs); a group's own bound waits for its turn.
+                // they are taken at once, clipped only as far as the newest
+                // frame needs.
                 let coarse = &mut coarse_bounds[group.coarse];
                 if coarse.is_nan() {
                     stats.group_bounds += 1;
