@@ -5,7 +5,8 @@
 # and the warped best-overlap frames as the geometry input), 5,000 steps each
 # (20% of the baseline's), and the baseline continued for the same 5,000 steps
 # with the recipe (no warp: it keeps no memory). Every stage resumes where it
-# stopped; run them in the background on one thread each.
+# stopped; run them in the background on one thread each. STEPS sets the
+# fine-tunes' length (session 14 ran 4,000, 16%, to fit the chain in a sitting).
 #   ./scripts/paper_order.sh baseline            # runs/base25k, then its export
 #   ./scripts/paper_order.sh finetune worldpack  # or nearest_frame_packing, memory_retrieval, baseline_continued
 #   ./scripts/paper_order.sh eval                # the 48-trajectory test suite, warps from each plan only
@@ -16,6 +17,7 @@ cd "$(dirname "$0")/.."
 base=runs/base25k
 out=runs/paper25k
 threads="${THREADS:-1}"
+steps="${STEPS:-5000}"
 bin=target/release/worldpack
 
 case "${1:-}" in
@@ -31,7 +33,7 @@ case "${1:-}" in
   finetune)
     shift
     [ -f "$base/model/baseline/manifest.json" ] || { echo "the 25,000-step baseline is not finished: run '$0 baseline' first" >&2; exit 2; }
-    BASE="$base" OUT="$out" STEPS=5000 THREADS="$threads" RECIPE="--context-noise 0.7 --generated-level 0.3" PACKED="--warp" \
+    BASE="$base" OUT="$out" STEPS="$steps" THREADS="$threads" RECIPE="--context-noise 0.7 --generated-level 0.3" PACKED="--warp" \
       ./scripts/recipe.sh train "$@" ;;
   eval)
     # The baseline row is the 25,000-step one; geometry rows take warps only from their own plan's frames.
