@@ -10,6 +10,8 @@ use std::sync::atomic::Ordering;
 use std::time::Duration;
 
 use crate::AppState;
+use crate::error::ApiError;
+use crate::routes::blocking;
 
 /// Sweeps every quarter of the idle time (between 0.2 s and a minute), for ever.
 pub(crate) async fn expire_idle_sessions(state: Arc<AppState>, idle: Duration) {
@@ -18,27 +20,22 @@ pub(crate) async fn expire_idle_sessions(state: Arc<AppState>, idle: Duration) {
     loop {
         tick.tick().await;
         let st = state.clone();
-        let idle_ids = tokio::task::spawn_blocking(move || st.engine.store.idle_sessions(idle)).await;
-        let ids = match idle_ids {
-            Ok(Ok(ids)) => ids,
-            Ok(Err(e)) => {
-                eprintln!("retention: {e}"); // the store is down: the next sweep tries again
-                continue;
-            }
+        let ids = match blocking(move || Ok(st.engine.store.idle_sessions(idle)?)).await {
+            Ok(ids) => ids,
             Err(e) => {
-                eprintln!("retention: {e}");
+                eprintln!("retention: {}", e.message); // the store is down: the next sweep tries again
                 continue;
             }
         };
         for id in ids {
             if let Err(e) = expire(&state, id, idle).await {
-                eprintln!("retention: session {id}: {e}");
+                eprintln!("retention: session {id}: {}", e.message);
             }
         }
     }
 }
 
-async fn expire(state: &Arc<AppState>, id: u64, idle: Duration) -> Result<(), String> {
+async fn expire(state: &Arc<AppState>, id: u64, idle: Duration) -> Result<(), ApiError> {
     let slot = state.sessions.read().unwrap().get(&id).cloned();
     // A session this server never loaded (a replica's) has nothing here to lock.
     let mut guard = match &slot {
@@ -46,8 +43,7 @@ async fn expire(state: &Arc<AppState>, id: u64, idle: Duration) -> Result<(), St
         None => None,
     };
     let st = state.clone();
-    let deleted = tokio::task::spawn_blocking(move || st.engine.store.delete_if_idle(id, idle)).await.map_err(|e| e.to_string())?.map_err(|e| e.to_string())?;
-    if deleted {
+    if blocking(move || Ok(st.engine.store.delete_if_idle(id, idle)?)).await? {
         if let Some(guard) = guard.as_mut() {
             guard.deleted = true;
         }

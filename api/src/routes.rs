@@ -176,7 +176,7 @@ fn permit(st: &AppState) -> Res<tokio::sync::SemaphorePermit<'_>> {
     })
 }
 
-async fn blocking<T: Send + 'static>(f: impl FnOnce() -> Res<T> + Send + 'static) -> Res<T> {
+pub(crate) async fn blocking<T: Send + 'static>(f: impl FnOnce() -> Res<T> + Send + 'static) -> Res<T> {
     tokio::task::spawn_blocking(f).await.map_err(ApiError::internal)?
 }
 

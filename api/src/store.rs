@@ -24,6 +24,11 @@ fn unix_ms(t: SystemTime) -> u64 {
     t.duration_since(UNIX_EPOCH).map_or(0, |d| d.as_millis() as u64)
 }
 
+/// The write time (as `unix_ms`) at or before which a session has been idle for `idle`.
+fn idle_cutoff(idle: Duration) -> u64 {
+    unix_ms(SystemTime::now()).saturating_sub(idle.as_millis() as u64)
+}
+
 #[derive(Debug, thiserror::Error)]
 pub enum StoreError {
     #[error("store: {0}")]
@@ -263,7 +268,7 @@ impl RedbStore {
     }
 
     pub fn idle_sessions(&self, idle: Duration) -> Result<Vec<u64>, StoreError> {
-        let cutoff = unix_ms(SystemTime::now()).saturating_sub(idle.as_millis() as u64);
+        let cutoff = idle_cutoff(idle);
         let txn = self.db.begin_read().map_err(err)?;
         let mut out = Vec::new();
         for row in txn.open_table(WRITTEN).map_err(err)?.iter().map_err(err)? {
@@ -276,7 +281,7 @@ impl RedbStore {
     }
 
     pub fn delete_if_idle(&self, id: u64, idle: Duration) -> Result<bool, StoreError> {
-        let cutoff = unix_ms(SystemTime::now()).saturating_sub(idle.as_millis() as u64);
+        let cutoff = idle_cutoff(idle);
         self.write(|txn| {
             let written = txn.open_table(WRITTEN).map_err(err)?.get(id).map_err(err)?.map(|v| v.value());
             if written.is_none_or(|w| w > cutoff) {
