@@ -140,12 +140,12 @@ impl Frustum {
         &self.planes
     }
 
-    /// Exact volume of the truncated pyramid.
     /// The volumes of its [`TETRAHEDRA`].
     pub fn tetrahedra(&self) -> &[f64; 6] {
         &self.tetrahedra
     }
 
+    /// Exact volume of the truncated pyramid.
     pub fn volume(&self) -> f64 {
         self.volume
     }

@@ -334,7 +334,6 @@ const BELOW_MARGIN: f64 = 1e-9;
 /// Planes (deepest cut first) whose closed-form bound is tried before clipping.
 const SINGLE_PLANE_TRIES: usize = 2;
 
-
 /// A frustum as its [`TETRAHEDRA`], with their volumes, for volumes inside
 /// planes in closed form.
 struct Tetrahedra<'a> {
@@ -417,7 +416,6 @@ fn tetrahedra_inside(v: [DVec3; 4], d: [f64; 4], e: [f64; 4]) -> SmallVec<[([DVe
     }
     out
 }
-
 
 /// The part of tetrahedron `v` where the linear function with values `d` at
 /// its vertices is ≤ 0.
