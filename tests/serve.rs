@@ -4,11 +4,17 @@
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
+use std::sync::{LazyLock, Mutex};
 use std::time::Duration;
 
 use base64::Engine;
 use base64::engine::general_purpose::STANDARD as B64;
 use serde_json::{Value, json};
+
+/// Every request of these tests: a server or Triton that stops answering
+/// fails its test within minutes instead of hanging the whole run.
+static HTTP: LazyLock<ureq::Agent> =
+    LazyLock::new(|| ureq::AgentBuilder::new().timeout_connect(Duration::from_secs(10)).timeout(Duration::from_secs(300)).build());
 
 struct Server {
     child: Child,
@@ -40,16 +46,16 @@ impl Server {
     }
 
     fn post(&self, path: &str, body: &Value) -> (u16, Value) {
-        answer(ureq::post(&format!("{}{path}", self.url)).set("Content-Type", "application/json").send_string(&body.to_string()))
+        answer(HTTP.post(&format!("{}{path}", self.url)).set("Content-Type", "application/json").send_string(&body.to_string()))
     }
 
     fn get(&self, path: &str) -> (u16, Value) {
-        answer(ureq::get(&format!("{}{path}", self.url)).call())
+        answer(HTTP.get(&format!("{}{path}", self.url)).call())
     }
 
     fn bytes(&self, path: &str) -> Vec<u8> {
         let mut out = Vec::new();
-        ureq::get(&format!("{}{path}", self.url)).call().unwrap().into_reader().read_to_end(&mut out).unwrap();
+        HTTP.get(&format!("{}{path}", self.url)).call().unwrap().into_reader().read_to_end(&mut out).unwrap();
         out
     }
 }
@@ -167,10 +173,10 @@ fn a_synthetic_session_steps_observes_selects_and_reads_back() {
     assert_eq!((code, r["frames"].as_u64()), (200, Some(22)));
     let (code, r) = s.get(&format!("/v1/sessions/{id}/frames/7"));
     assert_eq!((code, r["source"].as_str()), (200, Some("generated")));
-    let (code, _) = answer(ureq::delete(&format!("{}/v1/sessions/{id}", s.url)).call());
+    let (code, _) = answer(HTTP.delete(&format!("{}/v1/sessions/{id}", s.url)).call());
     assert_eq!(code, 204);
     assert_eq!(s.get(&format!("/v1/sessions/{id}")).0, 404);
-    let text = ureq::get(&format!("{}/metrics", s.url)).call().unwrap().into_string().unwrap();
+    let text = HTTP.get(&format!("{}/metrics", s.url)).call().unwrap().into_string().unwrap();
     assert!(text.contains("worldpack_steps_total 20") && text.contains("worldpack_observes_total 1"), "{text}");
 }
 
@@ -257,10 +263,10 @@ fn bad_requests_get_4xx_json_naming_the_field() {
         assert!(!r["error"]["message"].as_str().unwrap().is_empty(), "{what}");
     }
     // JSON has no NaN; an overflowing number is the closest a client can send.
-    let (code, r) = answer(ureq::post(&format!("{}{step}", s.url)).set("Content-Type", "application/json")
+    let (code, r) = answer(HTTP.post(&format!("{}{step}", s.url)).set("Content-Type", "application/json")
         .send_string(r#"{"action": {}, "pose": {"c2w": {"rotation": [[1,0,0],[0,1,0],[0,0,1]], "position": [0, 1e999, 0]}}}"#));
     assert_eq!((code, r["error"]["field"].as_str()), (400, Some("pose.c2w.position[1]")), "{r}");
-    let (code, r) = answer(ureq::post(&format!("{}{step}", s.url)).set("Content-Type", "text/plain").send_string("{}"));
+    let (code, r) = answer(HTTP.post(&format!("{}{step}", s.url)).set("Content-Type", "text/plain").send_string("{}"));
     assert_eq!((code, r["error"]["field"].as_str()), (415, Some("content-type")));
     // A body over the limit is refused once the server has read past it. Sent by hand: a
     // client still writing when the server answers and closes sees a broken pipe, and the
@@ -336,7 +342,7 @@ fn acknowledged_writes_survive_sigkill(store: &Path) {
             for k in 1..10_000u64 {
                 let x = round as f64 * 1000.0 + k as f64;
                 let body = json!({ "image_png": png.clone(), "pose": c2w([x, 0.0, 0.0]) }).to_string();
-                match ureq::post(&format!("{url}/v1/sessions/{id}/observe")).set("Content-Type", "application/json").send_string(&body) {
+                match HTTP.post(&format!("{url}/v1/sessions/{id}/observe")).set("Content-Type", "application/json").send_string(&body) {
                     Ok(r) => {
                         let v: Value = r.into_json().unwrap();
                         done.push((id, v["index"].as_u64().unwrap(), x));
@@ -485,6 +491,7 @@ fn two_replicas_on_one_database_share_the_sessions() {
 /// sees every denoiser call and its dynamic batcher gathers some of them.
 #[test]
 fn two_replicas_on_one_database_and_one_triton_share_the_sessions() {
+    let _alone = triton_alone();
     let pg = PgCluster::start("replicas-triton");
     let triton = TritonHost::start("fixtures/small", None);
     replicas_share_the_sessions(&pg, &["--model-backend", &triton.backend()]);
@@ -553,7 +560,7 @@ fn replicas_share_the_sessions(pg: &PgCluster, extra: &[&str]) {
     for s in replicas {
         assert_eq!(s.get(&format!("/v1/sessions/{id}")).1["frames"].as_u64(), Some(5 + taken.len() as u64));
     }
-    let (code, _) = answer(ureq::delete(&format!("{}/v1/sessions/{id}", a.url)).call());
+    let (code, _) = answer(HTTP.delete(&format!("{}/v1/sessions/{id}", a.url)).call());
     assert_eq!(code, 204);
     let (code, r) = b.post(&format!("/v1/sessions/{id}/step"), &json!({ "action": {} }));
     assert_eq!((code, r["error"]["field"].as_str()), (404, Some("session")), "deleted on the other replica: {r}");
@@ -581,7 +588,7 @@ fn a_replica_killed_mid_step_loses_nothing_acknowledged() {
     let stepper = std::thread::spawn(move || {
         let mut acknowledged = Vec::new();
         for _ in 0..200 {
-            let r = ureq::post(&format!("{url}/v1/sessions/{id}/step")).set("Content-Type", "application/json").send_string(&json!({ "action": { "forward": true } }).to_string());
+            let r = HTTP.post(&format!("{url}/v1/sessions/{id}/step")).set("Content-Type", "application/json").send_string(&json!({ "action": { "forward": true } }).to_string());
             match r {
                 Ok(resp) => acknowledged.push(resp.into_json::<Value>().unwrap()["index"].as_u64().unwrap()),
                 Err(_) => break,
@@ -634,7 +641,7 @@ fn a_session_on_postgres_comes_back_whole() {
     // The restored session steps on from its stored latents.
     let (code, r) = s.post(&format!("/v1/sessions/{id}/step"), &json!({ "action": {} }));
     assert_eq!((code, r["index"].as_u64()), (200, Some(3)), "{r}");
-    let (code, _) = answer(ureq::delete(&format!("{}/v1/sessions/{id}", s.url)).call());
+    let (code, _) = answer(HTTP.delete(&format!("{}/v1/sessions/{id}", s.url)).call());
     assert_eq!(code, 204);
     s.kill();
     let s = Server::start(&store, &[]);
@@ -701,15 +708,15 @@ fn the_openapi_document_describes_the_routes_and_docs_are_served_offline() {
         for method in item.as_object().unwrap().keys().filter(|m| ["get", "post", "delete"].contains(&m.as_str())) {
             let url = format!("{}{concrete}", s.url);
             let resp = match method.as_str() {
-                "get" => ureq::get(&url).call(),
-                "delete" => ureq::delete(&url).call(),
-                _ => ureq::post(&url).set("Content-Type", "application/json").send_string("{}"),
+                "get" => HTTP.get(&url).call(),
+                "delete" => HTTP.delete(&url).call(),
+                _ => HTTP.post(&url).set("Content-Type", "application/json").send_string("{}"),
             };
             let (code, body) = answer(resp);
             assert_ne!(body["error"]["field"], "path", "{method} {path} is documented but not routed ({code})");
         }
     }
-    let html = ureq::get(&format!("{}/docs/", s.url)).call().unwrap().into_string().unwrap();
+    let html = HTTP.get(&format!("{}/docs/", s.url)).call().unwrap().into_string().unwrap();
     assert!(html.contains("swagger-ui"), "the docs page is Swagger UI, served from the binary");
 }
 
@@ -892,7 +899,7 @@ fn batched_steps_make_the_frames_a_lone_step_makes() {
         let workers: Vec<_> = ids[..4].iter().map(|&id| scope.spawn(move || s.post(&format!("/v1/sessions/{id}/step"), body))).collect();
         workers.into_iter().map(|w| w.join().unwrap()).map(|(code, r)| { assert_eq!(code, 200, "{r}"); r }).collect()
     });
-    let text = ureq::get(&format!("{}/metrics", s.url)).call().unwrap().into_string().unwrap();
+    let text = HTTP.get(&format!("{}/metrics", s.url)).call().unwrap().into_string().unwrap();
     let counter = |name: &str| text.lines().find(|l| l.starts_with(name)).and_then(|l| l.split_whitespace().nth(1)).unwrap().parse::<u64>().unwrap();
     let (calls, items) = (counter("worldpack_batched_calls_total"), counter("worldpack_batched_items_total"));
     assert_eq!(items, 4, "{text}");
@@ -908,6 +915,17 @@ fn batched_steps_make_the_frames_a_lone_step_makes() {
     }
 }
 
+/// How long a Triton host may take to load a model folder's graphs.
+const TRITON_START: Duration = Duration::from_secs(240);
+
+/// The Triton tests run one at a time: each host loads every graph in its
+/// own Python and Triton processes, and several at once beside the other
+/// servers starve a small CI machine.
+fn triton_alone() -> std::sync::MutexGuard<'static, ()> {
+    static ONE: Mutex<()> = Mutex::new(());
+    ONE.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
+}
+
 /// `serving/triton/host.py`: a real Triton Inference Server (PyPI's
 /// `tritonserver`, in `.venv-triton`, which scripts/test.sh makes) hosting a
 /// model folder's graphs on free loopback ports; killed with its process
@@ -919,30 +937,65 @@ struct TritonHost {
 }
 
 impl TritonHost {
-    /// Starts it on `ports` (http, grpc, metrics) or on free ones.
+    /// Starts it on `ports` (http, grpc, metrics) or on free ones. A start
+    /// on free ports that fails (another process took one of them between
+    /// the probe and Triton's bind) is tried once more on new ones.
     fn start(model: &str, ports: Option<[u16; 3]>) -> TritonHost {
+        let free = || std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port();
+        match (TritonHost::try_start(model, ports.unwrap_or_else(|| [free(), free(), free()])), ports) {
+            (Ok(host), _) => host,
+            (Err(why), Some(_)) => panic!("{why}"),
+            (Err(why), None) => {
+                eprintln!("{why}; trying once more on other ports");
+                TritonHost::try_start(model, [free(), free(), free()]).unwrap_or_else(|why| panic!("{why}"))
+            }
+        }
+    }
+
+    /// Waits at most [`TRITON_START`] for `serving/triton/host.py` to say it
+    /// serves; otherwise kills it and returns why, with the end of its log.
+    fn try_start(model: &str, [http, grpc, metrics]: [u16; 3]) -> Result<TritonHost, String> {
         use std::os::unix::process::CommandExt;
         let root = Path::new(env!("CARGO_MANIFEST_DIR"));
         let python = std::env::var_os("WORLDPACK_TRITON_PYTHON").map(PathBuf::from).unwrap_or(root.join(".venv-triton/bin/python"));
         assert!(python.exists(), "{} is missing: run ./scripts/test.sh once (it makes .venv-triton with PyPI's nvidia-pytriton)", python.display());
-        let free = || std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port();
-        let [http, grpc, metrics] = ports.unwrap_or_else(|| [free(), free(), free()]);
+        let log = std::env::temp_dir().join(format!("worldpack-triton-{}-{http}.log", std::process::id()));
         let mut child = Command::new(python)
             .arg(root.join("serving/triton/host.py"))
             .arg("--model").arg(root.join(model))
             .args(["--http-port", &http.to_string(), "--grpc-port", &grpc.to_string(), "--metrics-port", &metrics.to_string()])
             .stdout(Stdio::piped())
-            .stderr(Stdio::null())
+            .stderr(std::fs::File::create(&log).unwrap())
             .process_group(0)
             .spawn()
             .unwrap();
+        // The first line that says "serving", read on a thread so that the wait has a deadline.
+        let (said, heard) = std::sync::mpsc::channel();
         let mut stdout = BufReader::new(child.stdout.take().unwrap());
-        let mut line = String::new();
-        while !line.starts_with("serving ") {
-            line.clear();
-            assert!(stdout.read_line(&mut line).unwrap() > 0, "serving/triton/host.py exited before serving (run it by hand to see why)");
+        std::thread::spawn(move || {
+            let mut line = String::new();
+            while !line.starts_with("serving ") {
+                line.clear();
+                if stdout.read_line(&mut line).unwrap_or(0) == 0 {
+                    return; // dropping `said` reports the exit
+                }
+            }
+            let _ = said.send(stdout);
+        });
+        match heard.recv_timeout(TRITON_START) {
+            Ok(stdout) => Ok(TritonHost { child, ports: [http, grpc, metrics], _stdout: stdout }),
+            Err(waited) => {
+                unsafe { libc_kill(-(child.id() as i32), 9) };
+                let _ = child.wait();
+                let text = std::fs::read_to_string(&log).unwrap_or_default();
+                let tail: Vec<&str> = text.lines().rev().take(15).collect::<Vec<_>>().into_iter().rev().collect();
+                let how = match waited {
+                    std::sync::mpsc::RecvTimeoutError::Timeout => format!("did not serve within {TRITON_START:?}"),
+                    std::sync::mpsc::RecvTimeoutError::Disconnected => "exited before serving".into(),
+                };
+                Err(format!("serving/triton/host.py on ports {http}/{grpc}/{metrics} {how}; the end of its log ({}):\n{}", log.display(), tail.join("\n")))
+            }
         }
-        TritonHost { child, ports: [http, grpc, metrics], _stdout: stdout }
     }
 
     /// The `--model-backend` URL.
@@ -952,7 +1005,7 @@ impl TritonHost {
 
     /// A counter from Triton's Prometheus metrics for one model.
     fn metric(&self, name: &str, model: &str) -> f64 {
-        let text = ureq::get(&format!("http://127.0.0.1:{}/metrics", self.ports[2])).call().unwrap().into_string().unwrap();
+        let text = HTTP.get(&format!("http://127.0.0.1:{}/metrics", self.ports[2])).call().unwrap().into_string().unwrap();
         let prefix = format!("{name}{{model=\"{model}\",");
         text.lines().find(|l| l.starts_with(&prefix)).and_then(|l| l.rsplit(' ').next()).and_then(|v| v.parse().ok())
             .unwrap_or_else(|| panic!("no {prefix} in Triton's metrics"))
@@ -976,6 +1029,7 @@ impl Drop for TritonHost {
 /// with the same seeds.
 #[test]
 fn triton_runs_the_graphs_as_the_local_backend_does() {
+    let _alone = triton_alone();
     let triton = TritonHost::start("fixtures/small", None);
     let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/small");
     let local = model::Model::load(&dir, model::RuntimeOptions::default()).unwrap();
@@ -1034,6 +1088,7 @@ fn triton_runs_the_graphs_as_the_local_backend_does() {
 /// the same port.
 #[test]
 fn a_stopped_triton_answers_503_and_service_resumes() {
+    let _alone = triton_alone();
     let mut triton = TritonHost::start("fixtures/small", None);
     let s = Server::start(&temp_store("triton-fault"), &["--model-backend", &triton.backend()]);
     let (_, c) = s.post("/v1/sessions", &json!({ "synthetic": { "seed": 3 } }));
