@@ -7,6 +7,7 @@ mod bench_step;
 mod cli;
 mod demo;
 mod eval;
+mod fusion;
 mod geometry;
 mod plan;
 mod probe;
@@ -112,6 +113,9 @@ enum Command {
     /// LoopNav-style evaluation: observe each trajectory's exploration, roll out its return leg
     /// autoregressively under each policy with its own weights, and score PSNR and SSIM per frame.
     Eval(eval::Options),
+    /// Training examples for a geometry model's fusion head: its own predictions, the fused
+    /// reference of its warp sources, where the warp landed and the truth, on a suite's return legs.
+    FusionData(fusion::Options),
     /// PSNR and SSIM of two PNG images, as JSON (the metrics `eval` uses).
     Compare { a: PathBuf, b: PathBuf },
     /// Write each trajectory's context plans (plan-<policy>.npy) beside a suite or dataset, for training.
@@ -394,6 +398,7 @@ fn main() -> ExitCode {
             report(serve(config), "serve")
         }
         Command::Probe(o) => report(probe::run(&o), "probe"),
+        Command::FusionData(o) => report(fusion::run(&o), "fusion-data"),
         Command::Study(o) => report(study::run(&o), "study"),
         Command::Eval(o) => report(eval::run(&o), "eval"),
         Command::Compare { a, b } => report(eval::compare(&a, &b), "compare"),

@@ -458,3 +458,39 @@ fn occluder_scenes_and_co_visible_rollouts() {
     let _ = std::fs::remove_dir_all(&suite);
     let _ = std::fs::remove_dir_all(&out);
 }
+
+/// `worldpack fusion-data` writes what a fusion head trains on, and the
+/// committed geometry model with its fusion head, probed one step ahead on a
+/// fresh suite, beats both of what it blends: the same model without the
+/// head and the fused warp of its sources.
+#[test]
+fn a_fusion_head_beats_the_model_and_the_warp_it_blends() {
+    let suite = suite("fusion");
+    let data = temp("fusion-data");
+    let geometry = root().join("fixtures/variants/worldpack_geometry");
+    ok(&["fusion-data", "--suite", suite.to_str().unwrap(), "--model", geometry.to_str().unwrap(), "--stride", "3", "--steps", "2",
+        "--threads", "1", "--out", data.to_str().unwrap()]);
+    let shape = |name: &str| world::npy::read::<u8>(&data.join(format!("{name}.npy"))).unwrap().0;
+    let n = shape("truth")[0];
+    assert!(n > 0);
+    for name in ["predicted", "reference", "truth"] {
+        assert_eq!(shape(name), [n, 64, 64, 3], "{name}");
+    }
+    assert_eq!(shape("landed"), [n, 64, 64]);
+    let fused = root().join("fixtures/variants/worldpack_geometry_fused");
+    let e = String::from_utf8_lossy(&run(&["fusion-data", "--suite", suite.to_str().unwrap(), "--model", fused.to_str().unwrap(),
+        "--out", data.to_str().unwrap()]).stderr).into_owned();
+    assert!(e.contains("fusion head already"), "{e}");
+
+    let out = temp("fusion-probe").join("probe.json");
+    ok(&["probe", "--suite", suite.to_str().unwrap(), "--stride", "2", "--latency-calls", "1", "--threads", "1",
+        "--extra", &format!("worldpack_geometry={}", geometry.display()), "--extra", &format!("worldpack_geometry_fused={}", fused.display()),
+        "--out", out.to_str().unwrap()]);
+    let report = json(&out);
+    let psnr = |name: &str| report["rows"].as_array().unwrap().iter().find(|r| r["name"] == name).unwrap()["psnr"].as_f64().unwrap();
+    let (head, alone, warp) = (psnr("worldpack_geometry_fused"), psnr("worldpack_geometry"), psnr("reproject 3 best frames, fused"));
+    assert!(head > alone && head > warp, "with the head {head:.2} dB, the model alone {alone:.2}, the fused warp {warp:.2}");
+    let _ = std::fs::remove_dir_all(&suite);
+    let _ = std::fs::remove_dir_all(&data);
+    let _ = std::fs::remove_dir_all(out.parent().unwrap());
+}

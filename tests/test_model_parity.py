@@ -48,6 +48,8 @@ def graphs(manifest=MANIFEST):
     ae = manifest["autoencoder"]
     out = [("encoder", ae["encoder"]["file"], ae["encoder"]), ("decoder", ae["decoder"]["file"], ae["decoder"])]
     out += [(f"denoiser_{lay['name']}", lay["file"], lay) for lay in manifest["denoiser"]["layouts"]]
+    if "fusion" in manifest:  # a geometry model's fusion head
+        out.append(("fusion", manifest["fusion"]["file"], manifest["fusion"]))
     return out
 
 

@@ -26,13 +26,13 @@ def parse(path):
     return text_format.Parse(path.read_text(), model_config_pb2.ModelConfig())
 
 
-@pytest.mark.parametrize("model", ["fixtures/small", "fixtures/variants/worldpack_geometry"])
+@pytest.mark.parametrize("model", ["fixtures/small", "fixtures/variants/worldpack_geometry", "fixtures/variants/worldpack_geometry_fused"])
 def test_the_repository_parses_as_triton_model_configs_matching_the_manifest(tmp_path, model):
     model_dir = ROOT / model
     manifest = json.loads((model_dir / "manifest.json").read_text())
     names = repository.write(model_dir, tmp_path, max_batch=32, queue_delay_us=500, gpu=True)
     assert names[:2] == [f"{manifest['name']}-encoder", f"{manifest['name']}-decoder"]
-    assert len(names) == 2 + len(manifest["denoiser"]["layouts"])
+    assert len(names) == 2 + len(manifest["denoiser"]["layouts"]) + ("fusion" in manifest)
     for (role, spec), name in zip(repository.graphs(manifest), names):
         config = parse(tmp_path / name / "config.pbtxt")
         assert (config.name, config.platform, config.max_batch_size) == (name, "onnxruntime_onnx", 32)

@@ -416,3 +416,48 @@ pub fn latency_ms(traj: &Trajectory, row: &Row, latents: &[Vec<f32>], calls: usi
     times.sort_by(f64::total_cmp);
     Ok(times.get(times.len() / 2).copied().unwrap_or(f64::NAN))
 }
+
+/// What a geometry model's fusion head learns from, for one trajectory: at
+/// each return-leg target (every `stride`-th) the model's own prediction
+/// (its fusion head left out), the fused reference of its warp sources
+/// (`model::warp::fused_reference`), where that warp landed, and the truth.
+/// RGB rows of `w`×`h`×3 bytes, masks `w`×`h` bytes of 0 or 1.
+#[derive(Default)]
+pub struct FusionExamples {
+    pub count: usize,
+    pub predicted: Vec<u8>,
+    pub reference: Vec<u8>,
+    pub mask: Vec<u8>,
+    pub truth: Vec<u8>,
+}
+
+pub fn fusion_examples(traj: &Trajectory, model: &Model, sampler: &Sampler, settings: &Settings, out: &mut FusionExamples) -> Result<(), ProbeError> {
+    let Some(warp) = warp_policy(model) else {
+        return Err(ProbeError::Invalid(format!("model {} takes no warp input", model.dir().display())));
+    };
+    let targets = traj.return_frames(settings.stride);
+    let policy = model.trained_policy();
+    let mut plans = plans(traj, &[&policy, &warp], &targets)?;
+    let warp_plans = plans.pop().expect("the warp plans");
+    if model.manifest().fusion.is_some() {
+        return Err(ProbeError::Invalid(format!("model {} has a fusion head already: give the model it was added to", model.dir().display())));
+    }
+    let latents = encode_all(model, traj)?;
+    let mut predicted = HashMap::new();
+    predict_model(model, &policy, sampler, traj, &latents, &targets, &plans[0], &warp_plans, settings, |t, img| {
+        predicted.insert(t, img);
+    })?;
+    for (&t, plan) in targets.iter().zip(&warp_plans) {
+        let sources = warp_sources(traj, plan);
+        if sources.is_empty() {
+            continue; // no stored frame with depth: the head is not run
+        }
+        let (reference, mask) = model::warp::fused_reference(&sources, &traj.poses[t])?;
+        out.predicted.extend(&predicted[&t]);
+        out.reference.extend(reference);
+        out.mask.extend(mask.iter().map(|&m| m as u8));
+        out.truth.extend(traj.frame(t));
+        out.count += 1;
+    }
+    Ok(())
+}

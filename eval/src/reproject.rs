@@ -4,7 +4,7 @@
 //! bigger than the scene needs.
 
 use memory::{Intrinsics, Pose};
-use model::warp::{Warped, forward_warp_many};
+use model::warp::{forward_warp_many, fused_reference};
 use model::WarpSource;
 
 /// `src` (RGB) with its depth, seen from `src_pose`, as the camera at
@@ -17,56 +17,14 @@ pub fn reproject(src: &[u8], depth_mm: &[u16], k: &Intrinsics, src_pose: &Pose, 
     let source = WarpSource { rgb: src, depth_mm, pose: src_pose, intrinsics: k };
     let warped = forward_warp_many(&[source], dst_pose).expect("reproject: the frame and depth match the intrinsics");
     let hit = warped.coverage();
-    (keep_source_in_holes(warped, src), hit)
+    (warped.or_source(src), hit)
 }
 
-/// The fused reference: the `sources` (best first) behind one z-buffer,
-/// holes filled from warped neighbours over up to [`FILL_ROUNDS`] rounds,
-/// what is still empty from the best frame's own pixel.
+/// The fused reference (`model::warp::fused_reference`) and the fraction of
+/// target pixels the warp itself covers.
 pub fn reproject_fused(sources: &[WarpSource], dst_pose: &Pose) -> (Vec<u8>, f64) {
-    let mut warped = forward_warp_many(sources, dst_pose).expect("reproject_fused: frames and depth match their intrinsics");
-    let hit = warped.coverage();
-    let k = sources[0].intrinsics;
-    fill_from_neighbours(&mut warped, k.width as usize, k.height as usize, FILL_ROUNDS);
-    (keep_source_in_holes(warped, sources[0].rgb), hit)
-}
-
-/// Rounds of neighbour filling in [`reproject_fused`]: splatting at the same
-/// resolution leaves one- and two-pixel cracks, which two rounds close.
-pub const FILL_ROUNDS: usize = 2;
-
-fn keep_source_in_holes(mut warped: Warped, src: &[u8]) -> Vec<u8> {
-    for (p, &m) in warped.mask.iter().enumerate() {
-        if !m {
-            warped.rgb[3 * p..3 * p + 3].copy_from_slice(&src[3 * p..3 * p + 3]);
-        }
-    }
-    warped.rgb
-}
-
-/// Each hole with at least two warped 4-neighbours takes their mean; repeated `rounds` times.
-fn fill_from_neighbours(warped: &mut Warped, w: usize, h: usize, rounds: usize) {
-    for _ in 0..rounds {
-        let before = warped.clone();
-        for y in 0..h {
-            for x in 0..w {
-                let p = y * w + x;
-                if before.mask[p] {
-                    continue;
-                }
-                let near = [(x > 0).then(|| p - 1), (x + 1 < w).then(|| p + 1), (y > 0).then(|| p - w), (y + 1 < h).then(|| p + w)];
-                let valid: Vec<usize> = near.into_iter().flatten().filter(|&q| before.mask[q]).collect();
-                if valid.len() < 2 {
-                    continue;
-                }
-                for c in 0..3 {
-                    let sum: u32 = valid.iter().map(|&q| before.rgb[3 * q + c] as u32).sum();
-                    warped.rgb[3 * p + c] = ((sum + valid.len() as u32 / 2) / valid.len() as u32) as u8;
-                }
-                warped.mask[p] = true;
-            }
-        }
-    }
+    let (rgb, mask) = fused_reference(sources, dst_pose).expect("reproject_fused: frames and depth match their intrinsics");
+    (rgb, mask.iter().filter(|&&m| m).count() as f64 / mask.len().max(1) as f64)
 }
 
 #[cfg(test)]
@@ -125,15 +83,5 @@ mod tests {
         let (_, hit_one) = reproject_fused(&one, &dst);
         let (_, hit_both) = reproject_fused(&both, &dst);
         assert!(hit_one < 0.9 && hit_both > 0.99, "one view covers {hit_one}, two cover {hit_both}");
-    }
-
-    #[test]
-    fn cracks_are_filled_from_their_neighbours() {
-        let mut w = Warped { rgb: vec![100; 3 * 9], mask: vec![true; 9], depth: vec![1.0; 9] };
-        w.mask[4] = false;
-        w.rgb[12..15].copy_from_slice(&[0, 0, 0]);
-        fill_from_neighbours(&mut w, 3, 3, 1);
-        assert!(w.mask[4]);
-        assert_eq!(&w.rgb[12..15], &[100, 100, 100]);
     }
 }

@@ -17,6 +17,8 @@ pub enum GraphRole<'a> {
     Decoder,
     /// The denoiser of the named context layout.
     Denoiser(&'a str),
+    /// A geometry model's fusion head (manifest `fusion`).
+    Fusion,
 }
 
 /// Runs a model's graphs on named inputs; outputs in the manifest's order.
@@ -35,6 +37,7 @@ pub struct LocalGraphs {
     pub encoder: Graph,
     pub decoder: Graph,
     pub denoisers: Vec<(String, Graph)>,
+    pub fusion: Option<Graph>,
 }
 
 impl LocalGraphs {
@@ -48,7 +51,8 @@ impl LocalGraphs {
             .iter()
             .map(|l| Ok((l.name.clone(), Graph::open(dir, &l.graph(), options)?)))
             .collect::<Result<Vec<_>, ModelError>>()?;
-        Ok(LocalGraphs { encoder, decoder, denoisers })
+        let fusion = manifest.fusion.as_ref().map(|spec| Graph::open(dir, spec, options)).transpose()?;
+        Ok(LocalGraphs { encoder, decoder, denoisers, fusion })
     }
 
     pub fn denoiser(&self, layout: &str) -> Result<&Graph, ModelError> {
@@ -65,6 +69,7 @@ impl Backend for LocalGraphs {
             GraphRole::Encoder => self.encoder.run(inputs),
             GraphRole::Decoder => self.decoder.run(inputs),
             GraphRole::Denoiser(layout) => self.denoiser(layout)?.run(inputs),
+            GraphRole::Fusion => self.fusion.as_ref().ok_or_else(no_fusion)?.run(inputs),
         }
     }
 
@@ -75,4 +80,9 @@ impl Backend for LocalGraphs {
     fn local(&self) -> Option<&LocalGraphs> {
         Some(self)
     }
+}
+
+/// The error for a fusion call to a model without a fusion head.
+pub fn no_fusion() -> ModelError {
+    ModelError::input("fusion", "this model has no fusion head")
 }

@@ -28,6 +28,12 @@ pub struct Manifest {
     /// How the weights were trained (absent in hand-made manifests).
     #[serde(default)]
     pub training: Option<TrainingSpec>,
+    /// A geometry model's fusion head (`crate::fuse`): a small pixel-space
+    /// graph that blends the decoded frame with the fused reference of the
+    /// warp sources (inputs `predicted`, `reference`, `landed`; output
+    /// `image`). Absent: the decoded frame is the prediction.
+    #[serde(default)]
+    pub fusion: Option<GraphSpec>,
 }
 
 #[derive(Clone, Debug, Deserialize)]
@@ -68,6 +74,10 @@ impl TensorSpec {
         self.shape.iter().map(|d| if let Dim::Fixed(n) = d { *n } else { -1 }).collect()
     }
 }
+
+/// The fusion head's inputs, in order: the decoded frame and the fused
+/// reference, (B, 3, H, W) in [-1, 1], and where the warp landed, (B, 1, H, W) of 0 or 1.
+pub const FUSION_INPUTS: [&str; 3] = ["predicted", "reference", "landed"];
 
 #[derive(Clone, Debug, Deserialize)]
 pub struct GraphSpec {
@@ -299,6 +309,15 @@ impl Manifest {
             }
             if self.image.height % a.latent.height != 0 || self.image.width % a.latent.width != 0 {
                 return bad("denoiser.warp", "the image must be a whole multiple of the latent to pool the coverage".into());
+            }
+        }
+        if let Some(g) = &self.fusion {
+            if d.warp.is_none() {
+                return bad("fusion", "a fusion head blends the warp of the model's warp sources, but the denoiser takes no warp".into());
+            }
+            let names: Vec<&str> = g.inputs.iter().map(|t| t.name.as_str()).collect();
+            if names != FUSION_INPUTS || g.outputs.len() != 1 {
+                return bad("fusion.inputs", format!("expected inputs {FUSION_INPUTS:?} and one output, got {names:?} and {} outputs", g.outputs.len()));
             }
         }
         let f = &self.diffusion;

@@ -13,8 +13,14 @@ use crate::graph::Tensor;
 use crate::manifest::LayoutSpec;
 use crate::pack::{ContextFrame, pack, stack};
 use crate::sampler::Sampler;
-use crate::warp::{WarpSource, coverage_grid, forward_warp_many, warped_image};
-use crate::Model;
+use crate::manifest::FUSION_INPUTS;
+use crate::warp::{WarpSource, coverage_grid, forward_warp_many, fused_reference, warped_image};
+use crate::{GraphRole, Model};
+
+/// Interleaved RGB bytes as (3, n) planar values in [-1, 1].
+fn planar(rgb: &[u8], n: usize) -> impl Iterator<Item = f32> + '_ {
+    (0..3).flat_map(move |c| (0..n).map(move |p| rgb[3 * p + c] as f32 / 127.5 - 1.0))
+}
 
 /// One next frame to predict.
 #[derive(Clone, Copy, Debug)]
@@ -49,6 +55,8 @@ pub struct Prediction {
     /// Warping and encoding the geometry model's warp input (0 without one).
     pub warp_ms: f64,
     pub sample_ms: f64,
+    /// Decoding, and with a fusion head its reference warp, blend and the
+    /// re-encoding of the blended frames.
     pub decode_ms: f64,
 }
 
@@ -113,12 +121,53 @@ impl Model {
         let latent = self.sample(&layout.name, &cond, sampler, &seeds)?;
         let sample_ms = started.elapsed().as_secs_f64() * 1e3;
         let started = Instant::now();
-        let images = self.decode(&latent)?;
+        let mut images = self.decode(&latent)?;
+        let mut latent = latent;
+        if manifest.fusion.is_some() && requests.iter().any(|r| !r.warp.is_empty()) {
+            images = self.fuse(images, requests)?;
+            latent = self.encode(&images)?;
+        }
         let per = latent.data.len() / requests.len();
         let frames = (0..requests.len())
             .map(|j| Ok(Predicted { latent: latent.data[j * per..(j + 1) * per].to_vec(), rgb: tensor_to_frame(&images, j)? }))
             .collect::<Result<Vec<_>, ModelError>>()?;
         Ok(Prediction { frames, layout: layout.name.clone(), warp_ms, sample_ms, decode_ms: started.elapsed().as_secs_f64() * 1e3 })
+    }
+
+    /// The fusion head over a batch of decoded `images`: each request's
+    /// decoded frame blended with the fused reference of its warp sources
+    /// (`warp::fused_reference`). A request without sources keeps its
+    /// decoded frame (it has no reference; the head is not asked).
+    fn fuse(&self, images: Tensor, requests: &[Request]) -> Result<Tensor, ModelError> {
+        let (w, h) = (self.manifest().image.width, self.manifest().image.height);
+        let n = w * h;
+        let with: Vec<usize> = (0..requests.len()).filter(|&j| !requests[j].warp.is_empty()).collect();
+        let (mut predicted, mut reference, mut landed) = (Vec::new(), Vec::new(), Vec::new());
+        for &j in &with {
+            let r = &requests[j];
+            let k = r.warp[0].intrinsics;
+            if (k.width as usize, k.height as usize) != (w, h) {
+                return Err(ModelError::input("warp", format!("the source frame is {}x{}, the model takes {w}x{h}", k.width, k.height)));
+            }
+            let (rgb, mask) = fused_reference(r.warp, r.target_pose)?;
+            // Clamped, as the frames the head was trained on were.
+            predicted.extend(images.data[j * 3 * n..(j + 1) * 3 * n].iter().map(|v| v.clamp(-1.0, 1.0)));
+            reference.extend(planar(&rgb, n));
+            landed.extend(mask.iter().map(|&m| m as u8 as f32));
+        }
+        let b = with.len();
+        let predicted = Tensor::new(vec![b, 3, h, w], predicted);
+        let reference = Tensor::new(vec![b, 3, h, w], reference);
+        let landed = Tensor::new(vec![b, 1, h, w], landed);
+        let [p, r, l] = FUSION_INPUTS;
+        let fused = self.run(GraphRole::Fusion, &[(p, &predicted), (r, &reference), (l, &landed)])?.remove(0);
+        let mut out = images;
+        for (i, &j) in with.iter().enumerate() {
+            for (o, v) in out.data[j * 3 * n..(j + 1) * 3 * n].iter_mut().zip(&fused.data[i * 3 * n..(i + 1) * 3 * n]) {
+                *o = v.clamp(-1.0, 1.0);
+            }
+        }
+        Ok(out)
     }
 
     /// The geometry model's warp input for a batch, (B, C + 1, h, w): each

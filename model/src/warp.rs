@@ -51,6 +51,59 @@ impl Warped {
         }
         image
     }
+
+    /// The warp's RGB with what nothing landed on taken from `src` (same size).
+    pub fn or_source(mut self, src: &[u8]) -> Vec<u8> {
+        for (p, &m) in self.mask.iter().enumerate() {
+            if !m {
+                self.rgb[3 * p..3 * p + 3].copy_from_slice(&src[3 * p..3 * p + 3]);
+            }
+        }
+        self.rgb
+    }
+
+    /// Each hole with at least two landed 4-neighbours takes their mean and
+    /// counts as landed; repeated `rounds` times.
+    fn fill_cracks(&mut self, w: usize, h: usize, rounds: usize) {
+        for _ in 0..rounds {
+            let before = self.clone();
+            for y in 0..h {
+                for x in 0..w {
+                    let p = y * w + x;
+                    if before.mask[p] {
+                        continue;
+                    }
+                    let near = [(x > 0).then(|| p - 1), (x + 1 < w).then(|| p + 1), (y > 0).then(|| p - w), (y + 1 < h).then(|| p + w)];
+                    let valid: Vec<usize> = near.into_iter().flatten().filter(|&q| before.mask[q]).collect();
+                    if valid.len() < 2 {
+                        continue;
+                    }
+                    for c in 0..3 {
+                        let sum: u32 = valid.iter().map(|&q| before.rgb[3 * q + c] as u32).sum();
+                        self.rgb[3 * p + c] = ((sum + valid.len() as u32 / 2) / valid.len() as u32) as u8;
+                    }
+                    self.mask[p] = true;
+                }
+            }
+        }
+    }
+}
+
+/// Rounds of crack filling in [`fused_reference`]: splatting at the same
+/// resolution leaves one- and two-pixel cracks, which two rounds close.
+pub const FILL_ROUNDS: usize = 2;
+
+/// The fused reference: `sources` (best first) warped into `dst` behind one
+/// z-buffer, cracks filled from their neighbours over [`FILL_ROUNDS`] rounds,
+/// what is still empty the best frame's own pixel. The probe's strongest
+/// non-learned row, and what a fusion head blends with the model's frame.
+/// Returns the image and where the warp itself landed (before filling).
+pub fn fused_reference(sources: &[WarpSource], dst: &Pose) -> Result<(Vec<u8>, Vec<bool>), ModelError> {
+    let mut warped = forward_warp_many(sources, dst)?;
+    let landed = warped.mask.clone();
+    let k = sources[0].intrinsics;
+    warped.fill_cracks(k.width as usize, k.height as usize, FILL_ROUNDS);
+    Ok((warped.or_source(sources[0].rgb), landed))
 }
 
 /// A depth map in this module's millimetres (0: nothing in range), pooled to
@@ -231,5 +284,15 @@ mod tests {
         mask[1] = true;
         mask[15] = true;
         assert_eq!(coverage_grid(&mask, 4, 4, 2), vec![0.5, 0.0, 0.0, 0.25]);
+    }
+
+    #[test]
+    fn cracks_are_filled_from_their_neighbours() {
+        let mut w = Warped { rgb: vec![100; 3 * 9], mask: vec![true; 9], depth: vec![1.0; 9] };
+        w.mask[4] = false;
+        w.rgb[12..15].copy_from_slice(&[0, 0, 0]);
+        w.fill_cracks(3, 3, 1);
+        assert!(w.mask[4]);
+        assert_eq!(&w.rgb[12..15], &[100, 100, 100]);
     }
 }

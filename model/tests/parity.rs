@@ -357,3 +357,27 @@ fn bad_plans_name_the_slot() {
     let err = pack(layout, latent, None, &ContextPlan { slots }, 5, &target, frame).unwrap_err().to_string();
     assert!(err.starts_with("plan.slots[4]"), "{err}");
 }
+
+/// The fused geometry model's head through ONNX Runtime against PyTorch; a
+/// head on a model without the warp input is refused by name, and a model
+/// without a head says so when asked to fuse.
+#[test]
+fn the_fusion_head_matches_pytorch() {
+    let dir = fixture_named("variants/worldpack_geometry_fused");
+    let m = load(&dir);
+    let graph = m.local().unwrap().fusion.as_ref().expect("the fused model has a head");
+    let mut store = Vec::new();
+    let inputs = inputs_of(&dir, graph, "reference/fusion", &mut store);
+    let image = m.run(model::GraphRole::Fusion, &inputs).unwrap().remove(0);
+    assert_close(&image, &reference_in(&dir, "reference/fusion", "image"), "fusion.image", tolerance(&dir));
+
+    let err = model().run(model::GraphRole::Fusion, &inputs).unwrap_err().to_string();
+    assert!(err.starts_with("fusion:") && err.contains("no fusion head"), "{err}");
+    let copy = copy_fixture("fusion-without-warp");
+    let mut manifest = manifest_json();
+    manifest["fusion"] = manifest_json_in(&dir)["fusion"].clone();
+    std::fs::write(copy.join("manifest.json"), manifest.to_string()).unwrap();
+    let err = load_err(&copy).to_string();
+    assert!(err.contains("fusion") && err.contains("takes no warp"), "{err}");
+    let _ = std::fs::remove_dir_all(&copy);
+}

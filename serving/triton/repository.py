@@ -26,6 +26,8 @@ def graphs(manifest):
     yield "decoder", manifest["autoencoder"]["decoder"]
     for layout in manifest["denoiser"]["layouts"]:
         yield f"denoiser-{layout['name']}", layout
+    if "fusion" in manifest:
+        yield "fusion", manifest["fusion"]
 
 
 def tensor_block(spec):

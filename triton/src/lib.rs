@@ -34,6 +34,7 @@ pub fn model_name(name: &str, role: GraphRole) -> String {
         GraphRole::Encoder => format!("{name}-encoder"),
         GraphRole::Decoder => format!("{name}-decoder"),
         GraphRole::Denoiser(layout) => format!("{name}-denoiser-{layout}"),
+        GraphRole::Fusion => format!("{name}-fusion"),
     }
 }
 
@@ -49,6 +50,7 @@ pub struct TritonBackend {
     encoder: RemoteGraph,
     decoder: RemoteGraph,
     denoisers: Vec<(String, RemoteGraph)>,
+    fusion: Option<RemoteGraph>,
 }
 
 impl TritonBackend {
@@ -76,7 +78,8 @@ impl TritonBackend {
             .iter()
             .map(|l| Ok((l.name.clone(), graph(GraphRole::Denoiser(&l.name), l.graph())?)))
             .collect::<Result<Vec<_>, ModelError>>()?;
-        Ok(TritonBackend { base, agent, encoder, decoder, denoisers })
+        let fusion = manifest.fusion.clone().map(|spec| graph(GraphRole::Fusion, spec)).transpose()?;
+        Ok(TritonBackend { base, agent, encoder, decoder, denoisers, fusion })
     }
 
     /// The server's HTTP address (`http://HOST:PORT`).
@@ -88,6 +91,7 @@ impl TritonBackend {
         match role {
             GraphRole::Encoder => Ok(&self.encoder),
             GraphRole::Decoder => Ok(&self.decoder),
+            GraphRole::Fusion => self.fusion.as_ref().ok_or_else(model::backend::no_fusion),
             GraphRole::Denoiser(layout) => self.denoisers.iter().find(|(n, _)| n == layout).map(|(_, g)| g).ok_or_else(|| {
                 let known: Vec<&str> = self.denoisers.iter().map(|(n, _)| n.as_str()).collect();
                 ModelError::Input { field: "layout".into(), message: format!("this model has no {layout:?} layout; it has {known:?}") }

@@ -1,4 +1,5 @@
-"""`python -m worldpack_model <stage>`: train-ae, encode, train, variants, export, paper-scale, recover.
+"""`python -m worldpack_model <stage>`: train-ae, encode, train, variants, export, paper-scale, recover,
+fusion-train, fusion-export.
 See docs/model.md for the whole recipe."""
 
 from __future__ import annotations
@@ -107,6 +108,23 @@ def main() -> None:
     p.add_argument("--run", type=Path, required=True, help="the run folder to write")
     p.add_argument("--policy", help="name the checkpoint cdit-<policy>.pt (default: the manifest's training policy)")
 
+    p = sub.add_parser("fusion-train", help="train a geometry model's fusion head on `worldpack fusion-data` examples "
+                       "(fusion.py; resumes from run/fusion.pt)")
+    p.add_argument("--data", type=Path, nargs="+", required=True, help="folders written by `worldpack fusion-data`")
+    p.add_argument("--run", type=Path, required=True, help="run folder: fusion.pt, fusion.log")
+    p.add_argument("--steps", type=int, default=3000)
+    p.add_argument("--batch", type=int, default=32)
+    p.add_argument("--lr", type=float, default=2e-3)
+    p.add_argument("--width", type=int, default=24, help="channels of each convolution")
+    p.add_argument("--minutes", type=float, help="stop (and checkpoint) after this much wall time")
+    p.add_argument("--threads", type=int, default=0, help="torch CPU threads (0: torch's default)")
+
+    p = sub.add_parser("fusion-export", help="copy a geometry model folder with the trained fusion head added")
+    p.add_argument("--run", type=Path, required=True, help="the fusion-train run folder")
+    p.add_argument("--model", type=Path, required=True, help="the geometry model folder the head was trained on")
+    p.add_argument("--out", type=Path, required=True, help="the new model folder (its name becomes the model's)")
+    p.add_argument("--data", type=Path, help="a fusion-data folder whose last examples become the references")
+
     a = ap.parse_args()
     import torch
 
@@ -122,6 +140,14 @@ def main() -> None:
         from . import recover
 
         recover.recover(a.model, a.run, a.policy)
+    elif a.stage == "fusion-train":
+        from . import fusion
+
+        fusion.train(a.data, a.run, a.steps, a.batch, a.lr, a.minutes, a.width)
+    elif a.stage == "fusion-export":
+        from . import fusion
+
+        fusion.export(a.run, a.model, a.out, a.data)
     elif a.stage == "train-ae":
         train.train_autoencoder(a.data, a.run, a.steps, a.batch, a.lr, a.device, a.minutes)
     elif a.stage == "encode":

@@ -1,0 +1,196 @@
+"""The fusion head of a geometry model: a small convolutional net in pixel
+space that takes the decoded frame, the fused reference of the model's warp
+sources (the stored frames warped into the target view behind one z-buffer,
+cracks filled, what is still empty the best frame's own pixel) and where the
+warp landed, and returns the frame the model shows.
+
+It learns, per pixel, how far to trust the warp against the model: the warp
+is exact where it landed on the right surface, the decoder is blurred by the
+autoencoder, and in the warp's holes neither is right alone. The output is a
+convex blend of the two plus a small correction, so the head cannot drift
+far from both.
+
+    worldpack fusion-data --suite data/train120 --model M --out runs/fusion/train
+    ./scripts/model.sh fusion-train --data runs/fusion/train --run runs/fusion
+    ./scripts/model.sh fusion-export --run runs/fusion --model M --out M_fused
+
+`fusion-export` writes a copy of the model with `fusion.onnx` added and the
+manifest's `fusion` entry; the Rust runtime runs the head after the decoder
+in `Model::predict` (model/src/predict.rs).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import nn
+import torch.nn.functional as F
+
+INPUTS = ("predicted", "reference", "landed")  # the order model/src/manifest.rs expects
+CORRECTION = 0.25  # the largest per-channel correction beyond the blend, in [-1, 1] units
+
+
+class FusionHead(nn.Module):
+    def __init__(self, width: int = 24, dilations: tuple[int, ...] = (1, 2, 4, 8)):
+        super().__init__()
+        self.width, self.dilations = width, dilations
+        layers, c = [], 10  # predicted, reference, landed, predicted - reference
+        for d in dilations:
+            layers += [nn.Conv2d(c, width, 3, padding=d, dilation=d), nn.ReLU()]
+            c = width
+        self.body = nn.Sequential(*layers)
+        self.out = nn.Conv2d(width, 4, 1)
+        nn.init.zeros_(self.out.weight)
+        nn.init.zeros_(self.out.bias)  # starts as the plain average of the two
+
+    def forward(self, predicted, reference, landed):
+        x = torch.cat([predicted, reference, landed, predicted - reference], dim=1)
+        o = self.out(self.body(x))
+        w = torch.sigmoid(o[:, :1])
+        return w * reference + (1 - w) * predicted + CORRECTION * torch.tanh(o[:, 1:])
+
+
+def load_examples(folder: Path):
+    """The arrays `worldpack fusion-data` wrote, as float tensors in [-1, 1], NCHW."""
+    def rgb(name):
+        a = np.load(folder / f"{name}.npy")
+        return torch.from_numpy(a).permute(0, 3, 1, 2).float() / 127.5 - 1
+    landed = torch.from_numpy(np.load(folder / "landed.npy")).float()[:, None]
+    return rgb("predicted"), rgb("reference"), landed, rgb("truth")
+
+
+def psnr_db(a: torch.Tensor, b: torch.Tensor) -> float:
+    """Pooled PSNR of images in [-1, 1] (255-scale, as the Rust metrics)."""
+    mse = ((a.clamp(-1, 1) - b) * 127.5).pow(2).mean().item()
+    return 10 * math.log10(255**2 / max(mse, 1e-12))
+
+
+def train(data: list[Path], run: Path, steps: int, batch: int, lr: float, minutes: float | None, width: int, seed: int = 0) -> None:
+    """Trains the head on `data` (`worldpack fusion-data` folders); the last
+    tenth of each folder's examples (its suite's last trajectories) is held
+    out and scored against the decoder's frame, the reference and their
+    average. Resumes from run/fusion.pt."""
+    run.mkdir(parents=True, exist_ok=True)
+    folders = [load_examples(d) for d in data]
+    fit = [[x[: len(x) - max(1, len(x) // 10)] for x in f] for f in folders]
+    held = [[x[len(x) - max(1, len(x) // 10):] for x in f] for f in folders]
+    pred, ref, landed, truth = (torch.cat([f[i] for f in fit] + [h[i] for h in held]) for i in range(4))
+    n = len(pred)
+    cut = sum(len(f[0]) for f in fit)
+    torch.manual_seed(seed)
+    head = FusionHead(width)
+    opt = torch.optim.Adam(head.parameters(), lr=lr)
+    ckpt = run / "fusion.pt"
+    step = 0
+    if ckpt.exists():
+        state = torch.load(ckpt, weights_only=False)
+        head.load_state_dict(state["head"])
+        opt.load_state_dict(state["opt"])
+        step = state["step"]
+        print(f"resuming from step {step}")
+    config = {"width": width, "dilations": list(head.dilations), "data": [str(d) for d in data], "examples": n, "held_out": n - cut}
+
+    def save():
+        torch.save({"head": head.state_dict(), "opt": opt.state_dict(), "step": step, "config": config}, ckpt)
+
+    def held_out() -> dict:
+        with torch.no_grad():
+            out = torch.cat([head(pred[i:i + 256], ref[i:i + 256], landed[i:i + 256]) for i in range(cut, n, 256)])
+        t = truth[cut:]
+        return {"fused": psnr_db(out, t), "decoder": psnr_db(pred[cut:], t), "reference": psnr_db(ref[cut:], t),
+                "average": psnr_db((pred[cut:] + ref[cut:]) / 2, t)}
+
+    started, last_print = time.time(), time.time()
+    gen = torch.Generator().manual_seed(seed + step)
+    log = open(run / "fusion.log", "a")
+    while step < steps:
+        idx = torch.randint(0, cut, (batch,), generator=gen)
+        p, r, m, t = pred[idx], ref[idx], landed[idx], truth[idx]
+        if torch.rand(1, generator=gen).item() < 0.5:  # mirror: the head's task has no handedness
+            p, r, m, t = (x.flip(-1) for x in (p, r, m, t))
+        for g in opt.param_groups:
+            g["lr"] = lr * 0.5 * (1 + math.cos(math.pi * step / steps))
+        loss = F.mse_loss(head(p, r, m), t)
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        step += 1
+        if time.time() - last_print > 30 or step == steps:
+            last_print = time.time()
+            line = f"step {step}/{steps} loss {loss.item():.5f} ({(time.time() - started) / 60:.1f} min)"
+            print(line, flush=True)
+            log.write(line + "\n")
+            log.flush()
+            save()
+        if minutes is not None and time.time() - started > 60 * minutes:
+            print(f"stopping after {minutes} min at step {step}; run again to resume")
+            break
+    save()
+    scores = held_out()
+    line = "held out ({} examples), PSNR dB: ".format(n - cut) + ", ".join(f"{k} {v:.2f}" for k, v in scores.items())
+    print(line)
+    log.write(line + "\n")
+    (run / "fusion-held-out.json").write_text(json.dumps({"step": step, **config, "psnr": scores}, indent=1))
+
+
+def export(run: Path, model: Path, out: Path, data: Path | None = None) -> None:
+    """A copy of the model folder `model` at `out` with the head as
+    `fusion.onnx`, its manifest entry and references for the parity tests."""
+    from .export import to_onnx
+
+    state = torch.load(run / "fusion.pt", weights_only=False)
+    cfg = state["config"]
+    head = FusionHead(cfg["width"], tuple(cfg["dilations"]))
+    head.load_state_dict(state["head"])
+    head.eval()
+    manifest = json.loads((model / "manifest.json").read_text())
+    if "warp" not in manifest["denoiser"]:
+        raise SystemExit(f"--model: {model} takes no warp input, so there is nothing to fuse")
+    if "fusion" in manifest:
+        raise SystemExit(f"--model: {model} has a fusion head already")
+    if out.exists():
+        shutil.rmtree(out)
+    shutil.copytree(model, out)
+    h, w = manifest["image"]["height"], manifest["image"]["width"]
+    # Reference inputs: held-out examples when at hand, else seeded noise.
+    if data is not None:
+        p, r, m, _ = load_examples(data)
+        args = (p[-2:], r[-2:], m[-2:])
+    else:
+        g = torch.Generator().manual_seed(0)
+        args = (torch.rand(2, 3, h, w, generator=g) * 2 - 1, torch.rand(2, 3, h, w, generator=g) * 2 - 1,
+                (torch.rand(2, 1, h, w, generator=g) > 0.3).float())
+    proto = to_onnx(head, args, list(INPUTS), ["image"])
+    import onnx
+
+    onnx.save(proto, out / "fusion.onnx")
+    folder = out / "reference" / "fusion"
+    folder.mkdir(parents=True, exist_ok=True)
+    with torch.no_grad():
+        image = head(*args)
+    for name, t in zip(INPUTS + ("image",), args + (image,)):
+        np.save(folder / f"{name}.npy", t.numpy().astype(np.float32))
+    image_spec = lambda name, meaning: {"name": name, "shape": ["batch", 3, h, w], "dtype": "float32", "meaning": meaning}
+    manifest["name"] = out.name
+    manifest["fusion"] = {
+        "file": "fusion.onnx",
+        "inputs": [
+            image_spec("predicted", "the decoded frame, RGB in [-1, 1]"),
+            image_spec("reference", "the fused reference of the warp sources (model::warp::fused_reference), RGB in [-1, 1]"),
+            {"name": "landed", "shape": ["batch", 1, h, w], "dtype": "float32", "meaning": "1 where the warp itself landed, else 0"},
+        ],
+        "outputs": [image_spec("image", "the frame shown, RGB, nominally [-1, 1]; clamp before converting")],
+        "architecture": f"{len(cfg['dilations'])} dilated 3x3 convolutions of width {cfg['width']} (dilations {cfg['dilations']}); "
+                        f"output: a per-pixel convex blend of reference and decoded frame plus {CORRECTION} tanh(correction)",
+        "parameters": sum(p.numel() for p in head.parameters()),
+        "trained": {"steps": state["step"], "examples": cfg["examples"], "data": cfg["data"]},
+    }
+    manifest["reference"]["graphs"]["fusion"] = "reference/fusion"
+    (out / "manifest.json").write_text(json.dumps(manifest, indent=1))
+    print(f"wrote {out} ({manifest['fusion']['parameters']} fusion parameters)")
