@@ -32,6 +32,8 @@ import torch
 from torch import nn
 import torch.nn.functional as F
 
+from .train import resume
+
 INPUTS = ("predicted", "reference", "landed")  # the order model/src/manifest.rs expects
 CORRECTION = 0.25  # the largest per-channel correction beyond the blend, in [-1, 1] units
 
@@ -87,13 +89,7 @@ def train(data: list[Path], run: Path, steps: int, batch: int, lr: float, minute
     head = FusionHead(width)
     opt = torch.optim.Adam(head.parameters(), lr=lr)
     ckpt = run / "fusion.pt"
-    step = 0
-    if ckpt.exists():
-        state = torch.load(ckpt, weights_only=False)
-        head.load_state_dict(state["head"])
-        opt.load_state_dict(state["opt"])
-        step = state["step"]
-        print(f"resuming from step {step}")
+    step = resume(ckpt, head, opt, "the fusion head", key="head")
     config = {"width": width, "dilations": list(head.dilations), "data": [str(d) for d in data], "examples": n, "held_out": n - cut}
 
     def save():

@@ -51,6 +51,18 @@ def save(path: Path, **state) -> None:
     tmp.replace(path)  # a crash mid-save never leaves a torn checkpoint
 
 
+def resume(ckpt: Path, model: torch.nn.Module, opt: torch.optim.Optimizer, what: str, device="cpu", key: str = "model") -> int:
+    """Loads `model` (saved under `key`) and its optimiser from `ckpt` when
+    it exists; returns the step it was saved at (0 without a checkpoint)."""
+    if not ckpt.exists():
+        return 0
+    state = torch.load(ckpt, map_location=device, weights_only=False)
+    model.load_state_dict(state[key])
+    opt.load_state_dict(state["opt"])
+    print(f"resuming {what} at step {state['step']}")
+    return state["step"]
+
+
 def train_autoencoder(data: Path, run: Path, steps: int, batch: int, lr: float, device: str, minutes: float | None) -> None:
     cfg = run_config(run)
     dev = pick_device(device)
@@ -58,13 +70,7 @@ def train_autoencoder(data: Path, run: Path, steps: int, batch: int, lr: float, 
     ae = build_autoencoder(cfg.autoencoder).to(dev)
     opt = torch.optim.AdamW(ae.parameters(), lr=lr, weight_decay=0.0)
     ckpt = run / "autoencoder.pt"
-    step = 0
-    if ckpt.exists():
-        state = torch.load(ckpt, map_location=dev)
-        ae.load_state_dict(state["model"])
-        opt.load_state_dict(state["opt"])
-        step = state["step"]
-        print(f"resuming the autoencoder at step {step}")
+    step = resume(ckpt, ae, opt, "the autoencoder", dev)
     rng = np.random.default_rng(step)
     deadline = time.time() + minutes * 60 if minutes is not None else math.inf
     bar = tqdm(total=steps, initial=step, desc="autoencoder", unit="step")
