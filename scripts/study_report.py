@@ -20,7 +20,7 @@ GROUP_COLOUR = {  # RGB
 }
 GROUP_LABEL = {
     "policy": "context policy (own weights, 10 steps)", "keep_last": "WorldPack, newest frame kept", "steps": "WorldPack, sampler steps",
-    "estimator": "WorldPack, Monte Carlo overlap", "far": "WorldPack, frustum far", "size": "WorldPack, smaller model", "reference": "non-learned reference",
+    "estimator": "WorldPack, Monte Carlo overlap", "far": "WorldPack, frustum far", "size": "other models (--extra)", "reference": "non-learned reference",
 }
 # Point labels come from `worldpack study` (study.json: labels; memory::short_label in Rust).
 LABELS: dict[str, str] = {}
