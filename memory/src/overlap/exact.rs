@@ -574,7 +574,7 @@ mod tests {
         let mut u = move || rng.next_f64();
         let mut settled = 0;
         for case in 0..3000 {
-            let mut frustum = |u: &mut dyn FnMut() -> f64| {
+            let frustum = |u: &mut dyn FnMut() -> f64| {
                 let rot = DMat3::from_euler(glam::EulerRot::YXZ, 0.8 * u(), 0.4 * (u() - 0.5), 0.0);
                 at(rot, DVec3::new(4.0 * u(), 60.0 + u(), 4.0 * u()), 0.1, 20.0 + 10.0 * u())
             };
