@@ -123,11 +123,21 @@ impl Model {
         let started = Instant::now();
         let mut images = self.decode(&latent)?;
         let mut latent = latent;
-        if manifest.fusion.is_some() && requests.iter().any(|r| !r.warp.is_empty()) {
-            images = self.fuse(images, requests)?;
-            latent = self.encode(&images)?;
-        }
         let per = latent.data.len() / requests.len();
+        let fused: Vec<usize> = (0..requests.len()).filter(|&j| !requests[j].warp.is_empty()).collect();
+        if manifest.fusion.is_some() && !fused.is_empty() {
+            images = self.fuse(images, requests, &fused)?;
+            // The memory keeps the frame shown: the blended ones re-encoded, the others as sampled.
+            let n = images.data.len() / requests.len();
+            let blended = Tensor::new(
+                [vec![fused.len()], images.shape[1..].to_vec()].concat(),
+                fused.iter().flat_map(|&j| images.data[j * n..(j + 1) * n].iter().copied()).collect(),
+            );
+            let encoded = self.encode(&blended)?;
+            for (i, &j) in fused.iter().enumerate() {
+                latent.data[j * per..(j + 1) * per].copy_from_slice(&encoded.data[i * per..(i + 1) * per]);
+            }
+        }
         let frames = (0..requests.len())
             .map(|j| Ok(Predicted { latent: latent.data[j * per..(j + 1) * per].to_vec(), rgb: tensor_to_frame(&images, j)? }))
             .collect::<Result<Vec<_>, ModelError>>()?;
@@ -137,13 +147,13 @@ impl Model {
     /// The fusion head over a batch of decoded `images`: each request's
     /// decoded frame blended with the fused reference of its warp sources
     /// (`warp::fused_reference`). A request without sources keeps its
-    /// decoded frame (it has no reference; the head is not asked).
-    fn fuse(&self, images: Tensor, requests: &[Request]) -> Result<Tensor, ModelError> {
+    /// decoded frame (it has no reference; the head is not asked): `with`
+    /// lists the requests that have sources.
+    fn fuse(&self, images: Tensor, requests: &[Request], with: &[usize]) -> Result<Tensor, ModelError> {
         let (w, h) = (self.manifest().image.width, self.manifest().image.height);
         let n = w * h;
-        let with: Vec<usize> = (0..requests.len()).filter(|&j| !requests[j].warp.is_empty()).collect();
         let (mut predicted, mut reference, mut landed) = (Vec::new(), Vec::new(), Vec::new());
-        for &j in &with {
+        for &j in with {
             let r = &requests[j];
             let k = r.warp[0].intrinsics;
             if (k.width as usize, k.height as usize) != (w, h) {

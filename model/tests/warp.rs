@@ -139,3 +139,46 @@ fn noisy_or_missing_depth_degrades_the_warp_gracefully() {
         assert!(share >= 0.7, "case {i}: with 20% of the depth missing only {share:.3} of the clean warp stays");
     }
 }
+
+/// With a fusion head, a frame still does not depend on its batch: a request
+/// with warp sources is blended and its latent is the blend re-encoded, one
+/// without sources keeps its decoded frame and sampled latent, alone or
+/// beside the other.
+#[test]
+fn a_fused_frame_does_not_depend_on_its_batch() {
+    use memory::policy::{SelectedFrame, Slot};
+    use memory::{ContextPlan, Policy, PolicyKind};
+    use model::pack::ContextFrame;
+    use model::{Method, Request, Sampler};
+
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../fixtures/variants/worldpack_geometry_fused");
+    let model = Model::load(&dir, RuntimeOptions { provider: Provider::Cpu, threads: 1 }).expect("the fused model loads");
+    let WarpCases { k, shape, rgb, depth, src, dst, .. } = warp_cases();
+    let pixels = shape[1] * shape[2];
+    let first = &rgb[..pixels * 3];
+    let latent = model::generate::frame_to_tensor(first, k.width, k.height, &k, k.width, k.height).unwrap().0;
+    let latent = model.encode(&latent).unwrap().data;
+    let policy = Policy::preset(PolicyKind::WorldPack);
+    let layout = model.layout_for(&policy.packing).unwrap();
+    let mut slots: Vec<Slot> = layout.slots.iter().flat_map(|s| (0..s.count).map(move |_| Slot { rate: s.rate, frame: None })).collect();
+    slots[0].frame = Some(SelectedFrame { id: 0, time: 0, overlap: 1.0, score: 1.0 });
+    let plan = ContextPlan { slots };
+    let frame = |_: usize, id: u64| (id == 0).then(|| ContextFrame { latent: &latent, time: 0, pose: &src[0], generated: false });
+    let sampler = Sampler::new(&model.manifest().diffusion, 3, Method::Ddim, 0.0).unwrap();
+    let action = [1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0];
+    let warp = sources(&rgb, &depth, &src, &k);
+    let with = Request { plan: &plan, target_time: 1, target_pose: &dst[0], action: &action, seed: 5, warp: &warp[..1] };
+    let without = Request { warp: &[], seed: 6, ..with };
+    let both = model.predict(&policy.packing, &[with, without], &frame, &sampler).unwrap().frames;
+    for (i, r) in [with, without].into_iter().enumerate() {
+        let alone = model.predict(&policy.packing, &[r], &frame, &sampler).unwrap().frames.remove(0);
+        let worst_px = alone.rgb.iter().zip(&both[i].rgb).map(|(a, b)| a.abs_diff(*b)).max().unwrap();
+        let worst_latent = alone.latent.iter().zip(&both[i].latent).map(|(a, b)| (a - b).abs()).fold(0f32, f32::max);
+        assert!(worst_px <= 1 && worst_latent < 1e-3, "request {i}: batched and alone differ by {worst_px}/255 and {worst_latent} in the latent");
+    }
+    // The blended frame's latent is the blend re-encoded.
+    let shown = model::generate::frame_to_tensor(&both[0].rgb, k.width, k.height, &k, k.width, k.height).unwrap().0;
+    let again = model.encode(&shown).unwrap().data;
+    let worst = again.iter().zip(&both[0].latent).map(|(a, b)| (a - b).abs()).fold(0f32, f32::max);
+    assert!(worst < 0.05, "the stored latent is not the shown frame's: {worst}");
+}
