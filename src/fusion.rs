@@ -1,5 +1,5 @@
 //! `worldpack fusion-data`: the examples a geometry model's fusion head is
-//! trained on (`python -m worldpack_model fusion train`), from a suite's
+//! trained on (`./scripts/model.sh fusion-train`), from a suite's
 //! return legs, written as .npy beside each other.
 
 use std::path::PathBuf;
@@ -8,6 +8,8 @@ use anyhow::{Context, Result, bail};
 use eval::probe::{FusionExamples, SEED, Settings, fusion_examples};
 use eval::noise::PoseNoise;
 use eval::suite::{Trajectory, entries};
+
+use crate::cli::{Runtime, bar, count, parse_method};
 
 /// Seeds the pose noise (per trajectory, xor its index); not the study's seed.
 const NOISE_SEED: u64 = 0xf05e_d0a7;
@@ -25,8 +27,6 @@ fn share(s: &str) -> Result<f64, String> {
         _ => Err(format!("expected a share in [0, 1], got {s:?}")),
     }
 }
-
-use crate::cli::{Runtime, bar, count, parse_method};
 
 #[derive(clap::Args)]
 pub struct Options {

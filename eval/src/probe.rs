@@ -435,13 +435,13 @@ pub fn fusion_examples(traj: &Trajectory, model: &Model, sampler: &Sampler, sett
     let Some(warp) = warp_policy(model) else {
         return Err(ProbeError::Invalid(format!("model {} takes no warp input", model.dir().display())));
     };
+    if model.manifest().fusion.is_some() {
+        return Err(ProbeError::Invalid(format!("model {} has a fusion head already: give the model it was added to", model.dir().display())));
+    }
     let targets = traj.return_frames(settings.stride);
     let policy = model.trained_policy();
     let mut plans = plans(traj, &[&policy, &warp], &targets)?;
     let warp_plans = plans.pop().expect("the warp plans");
-    if model.manifest().fusion.is_some() {
-        return Err(ProbeError::Invalid(format!("model {} has a fusion head already: give the model it was added to", model.dir().display())));
-    }
     let latents = encode_all(model, traj)?;
     let mut predicted = HashMap::new();
     predict_model(model, &policy, sampler, traj, &latents, &targets, &plans[0], &warp_plans, settings, |t, img| {

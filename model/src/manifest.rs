@@ -28,7 +28,7 @@ pub struct Manifest {
     /// How the weights were trained (absent in hand-made manifests).
     #[serde(default)]
     pub training: Option<TrainingSpec>,
-    /// A geometry model's fusion head (`crate::fuse`): a small pixel-space
+    /// A geometry model's fusion head (run by `Model::predict`): a small pixel-space
     /// graph that blends the decoded frame with the fused reference of the
     /// warp sources (inputs `predicted`, `reference`, `landed`; output
     /// `image`). Absent: the decoded frame is the prediction.

@@ -14,7 +14,7 @@ use crate::manifest::LayoutSpec;
 use crate::pack::{ContextFrame, pack, stack};
 use crate::sampler::Sampler;
 use crate::manifest::FUSION_INPUTS;
-use crate::warp::{WarpSource, coverage_grid, forward_warp_many, fused_reference, warped_image};
+use crate::warp::{WarpSource, Warped, coverage_grid, forward_warp_many, warped_image};
 use crate::{GraphRole, Model};
 
 /// Interleaved RGB bytes as (3, n) planar values in [-1, 1].
@@ -104,11 +104,13 @@ impl Model {
         }
         let contexts: Vec<&[(String, Tensor)]> = packed.iter().map(|p| p.tensors.as_slice()).collect();
         let mut context = stack(&contexts);
+        // Each request's sources warped once: the warp input and a fusion head's reference share it.
+        let mut warps = Vec::new();
         let warp_ms = match &manifest.denoiser.warp {
             Some(spec) => {
                 let started = Instant::now();
-                let items: Vec<_> = requests.iter().map(|r| (r.warp, r.target_pose)).collect();
-                context.push((spec.input.clone(), self.warp_input(&items)?));
+                warps = requests.iter().map(|r| self.warp_of(r.warp, r.target_pose)).collect::<Result<_, _>>()?;
+                context.push((spec.input.clone(), self.encode_warps(&warps)?));
                 started.elapsed().as_secs_f64() * 1e3
             }
             None => 0.0,
@@ -124,9 +126,9 @@ impl Model {
         let mut images = self.decode(&latent)?;
         let mut latent = latent;
         let per = latent.data.len() / requests.len();
-        let fused: Vec<usize> = (0..requests.len()).filter(|&j| !requests[j].warp.is_empty()).collect();
+        let fused: Vec<usize> = (0..warps.len()).filter(|&j| warps[j].is_some()).collect();
         if manifest.fusion.is_some() && !fused.is_empty() {
-            images = self.fuse(images, requests, &fused)?;
+            images = self.fuse(images, requests, warps, &fused)?;
             // The memory keeps the frame shown: the blended ones re-encoded, the others as sampled.
             let n = images.data.len() / requests.len();
             let blended = Tensor::new(
@@ -148,18 +150,14 @@ impl Model {
     /// decoded frame blended with the fused reference of its warp sources
     /// (`warp::fused_reference`). A request without sources keeps its
     /// decoded frame (it has no reference; the head is not asked): `with`
-    /// lists the requests that have sources.
-    fn fuse(&self, images: Tensor, requests: &[Request], with: &[usize]) -> Result<Tensor, ModelError> {
+    /// lists the requests that have sources, `warps` their warps.
+    fn fuse(&self, images: Tensor, requests: &[Request], mut warps: Vec<Option<Warped>>, with: &[usize]) -> Result<Tensor, ModelError> {
         let (w, h) = (self.manifest().image.width, self.manifest().image.height);
         let n = w * h;
         let (mut predicted, mut reference, mut landed) = (Vec::new(), Vec::new(), Vec::new());
         for &j in with {
-            let r = &requests[j];
-            let k = r.warp[0].intrinsics;
-            if (k.width as usize, k.height as usize) != (w, h) {
-                return Err(ModelError::input("warp", format!("the source frame is {}x{}, the model takes {w}x{h}", k.width, k.height)));
-            }
-            let (rgb, mask) = fused_reference(r.warp, r.target_pose)?;
+            let warped = warps[j].take().expect("`with` lists the requests with a warp");
+            let (rgb, mask) = warped.into_reference(&requests[j].warp[0]);
             // Clamped, as the frames the head was trained on were.
             predicted.extend(images.data[j * 3 * n..(j + 1) * 3 * n].iter().map(|v| v.clamp(-1.0, 1.0)));
             reference.extend(planar(&rgb, n));
@@ -184,33 +182,45 @@ impl Model {
     /// item's source warped into its target pose and encoded, then the share
     /// of each latent cell the warp covers. No source: an empty warp.
     pub fn warp_input(&self, items: &[(&[WarpSource], &Pose)]) -> Result<Tensor, ModelError> {
+        let warps = items.iter().map(|(source, target)| self.warp_of(source, target)).collect::<Result<Vec<_>, _>>()?;
+        self.encode_warps(&warps)
+    }
+
+    /// `source` warped into `target` behind one z-buffer; `None` without a source.
+    fn warp_of(&self, source: &[WarpSource], target: &Pose) -> Result<Option<Warped>, ModelError> {
+        let Some(src) = source.first() else { return Ok(None) };
+        let (w, h) = (self.manifest().image.width, self.manifest().image.height);
+        let k = src.intrinsics;
+        if (k.width as usize, k.height as usize) != (w, h) {
+            return Err(ModelError::input("warp", format!("the source frame is {}x{}, the model takes {w}x{h}", k.width, k.height)));
+        }
+        Ok(Some(forward_warp_many(source, target)?))
+    }
+
+    /// The warp input of [`Model::warp_input`] from warps already made.
+    fn encode_warps(&self, warps: &[Option<Warped>]) -> Result<Tensor, ModelError> {
         let m = self.manifest();
         let (w, h) = (m.image.width, m.image.height);
         let l = &m.autoencoder.latent;
         let cells = l.height * l.width;
-        let mut images = Vec::with_capacity(items.len() * 3 * w * h);
-        let mut cover = Vec::with_capacity(items.len());
-        for (source, target) in items {
-            if let Some(src) = source.first() {
-                let k = src.intrinsics;
-                if (k.width as usize, k.height as usize) != (w, h) {
-                    return Err(ModelError::input("warp", format!("the source frame is {}x{}, the model takes {w}x{h}", k.width, k.height)));
-                }
-                let warped = forward_warp_many(source, target)?;
-                images.extend(warped_image(&warped));
+        let mut images = Vec::with_capacity(warps.len() * 3 * w * h);
+        let mut cover = Vec::with_capacity(warps.len());
+        for warped in warps {
+            if let Some(warped) = warped {
+                images.extend(warped_image(warped));
                 cover.push(coverage_grid(&warped.mask, w, h, h / l.height));
             } else {
                 images.extend(std::iter::repeat_n(0.0, 3 * w * h));
                 cover.push(vec![0.0; cells]);
             }
         }
-        let latents = self.encode(&Tensor::new(vec![items.len(), 3, h, w], images))?;
+        let latents = self.encode(&Tensor::new(vec![warps.len(), 3, h, w], images))?;
         let per = l.len();
-        let mut data = Vec::with_capacity(items.len() * (per + cells));
+        let mut data = Vec::with_capacity(warps.len() * (per + cells));
         for (j, c) in cover.iter().enumerate() {
             data.extend_from_slice(&latents.data[j * per..(j + 1) * per]);
             data.extend_from_slice(c);
         }
-        Ok(Tensor::new(vec![items.len(), l.channels + 1, l.height, l.width], data))
+        Ok(Tensor::new(vec![warps.len(), l.channels + 1, l.height, l.width], data))
     }
 }

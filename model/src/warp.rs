@@ -62,6 +62,14 @@ impl Warped {
         self.rgb
     }
 
+    /// [`fused_reference`] from the warp of its sources, `best` the first of
+    /// them: the image, and where the warp itself landed.
+    pub fn into_reference(mut self, best: &WarpSource) -> (Vec<u8>, Vec<bool>) {
+        let landed = self.mask.clone();
+        self.fill_cracks(best.intrinsics.width as usize, best.intrinsics.height as usize, FILL_ROUNDS);
+        (self.or_source(best.rgb), landed)
+    }
+
     /// Each hole with at least two landed 4-neighbours takes their mean and
     /// counts as landed; repeated `rounds` times.
     fn fill_cracks(&mut self, w: usize, h: usize, rounds: usize) {
@@ -99,11 +107,7 @@ pub const FILL_ROUNDS: usize = 2;
 /// non-learned row, and what a fusion head blends with the model's frame.
 /// Returns the image and where the warp itself landed (before filling).
 pub fn fused_reference(sources: &[WarpSource], dst: &Pose) -> Result<(Vec<u8>, Vec<bool>), ModelError> {
-    let mut warped = forward_warp_many(sources, dst)?;
-    let landed = warped.mask.clone();
-    let k = sources[0].intrinsics;
-    warped.fill_cracks(k.width as usize, k.height as usize, FILL_ROUNDS);
-    Ok((warped.or_source(sources[0].rgb), landed))
+    Ok(forward_warp_many(sources, dst)?.into_reference(&sources[0]))
 }
 
 /// A depth map in this module's millimetres (0: nothing in range), pooled to
