@@ -10,7 +10,7 @@ if [ ! -x .venv/bin/python ]; then
   python3 -m venv .venv
 fi
 echo "==> installing Python test requirements"
-.venv/bin/python -m pip install --disable-pip-version-check -q -r tests/requirements.txt
+.venv/bin/python -m pip install --disable-pip-version-check -q -r tests/requirements.txt -r doom/requirements.txt
 .venv/bin/python -m pip install --disable-pip-version-check -q -e 'clients/python[gym]'
 
 if [ ! -x .venv-triton/bin/python ]; then

@@ -43,6 +43,20 @@ pub enum Request {
         #[serde(default)]
         covisibility: Option<CoVisibility>,
     },
+    /// A frame with depth splatted into another camera by the geometry
+    /// models' warp (`model::warp::forward_warp`).
+    Warp { source: WarpInput, target: PoseInput },
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct WarpInput {
+    /// Row-major RGB, 3 bytes a pixel, at the intrinsics' size.
+    rgb: Vec<u8>,
+    /// Millimetres along the optical axis, one per pixel; 0 = nothing in range.
+    depth_mm: Vec<u16>,
+    pose: PoseInput,
+    intrinsics: IntrinsicsInput,
 }
 
 #[derive(Deserialize)]
@@ -90,6 +104,19 @@ pub fn answer(request: &Request) -> Result<Value, InputError> {
                 depths.push(cam.z);
             }
             Ok(json!({ "pixels": pixels, "depths": depths }))
+        }
+        Request::Warp { source, target } => {
+            let pose = source.pose.resolve().map_err(|e| e.within("source.pose"))?;
+            let k = source.intrinsics.resolve().map_err(|e| e.within("source.intrinsics"))?;
+            let dst = target.resolve().map_err(|e| e.within("target"))?;
+            let src = model::warp::WarpSource { rgb: &source.rgb, depth_mm: &source.depth_mm, pose: &pose, intrinsics: &k };
+            let warped = model::warp::forward_warp(&src, &dst).map_err(|e| match e {
+                model::ModelError::Input { field, message } => {
+                    InputError::Invalid { field: format!("source.{}", field.trim_start_matches("warp.")), reason: message }
+                }
+                other => InputError::Invalid { field: "source".into(), reason: other.to_string() },
+            })?;
+            Ok(json!({ "rgb": warped.rgb, "mask": warped.mask }))
         }
         Request::Resize { intrinsics, width, height } => {
             let k = intrinsics.resolve().map_err(|e| e.within("intrinsics"))?;

@@ -131,6 +131,13 @@ enum Command {
         #[arg(long)]
         memory_need: bool,
     },
+    /// Check a suite folder against the dataset format (docs/dataset.md): every file and field
+    /// that training, `plan` and `eval` read. Names the file and field of the first fault.
+    Check {
+        /// A suite folder (index.json and one folder per trajectory).
+        #[arg(long)]
+        data: PathBuf,
+    },
     /// Answer geometry requests: JSON on stdin (one object or an array), JSON on stdout.
     ///
     /// Ops: convert, project, resize, frustum, overlap, select. See docs/cli.md.
@@ -403,6 +410,7 @@ fn main() -> ExitCode {
         Command::Eval(o) => report(eval::run(&o), "eval"),
         Command::Compare { a, b } => report(eval::compare(&a, &b), "compare"),
         Command::Plan { data, policies, memory_need } => report(plan::run(&data, &policies, memory_need), "plan"),
+        Command::Check { data } => report(check_suite(&data), "check"),
         Command::Geometry { input } => {
             let text = match input {
                 Some(path) => std::fs::read_to_string(&path).map_err(|e| format!("cannot read {}: {e}", path.display())),
@@ -437,6 +445,21 @@ fn serve(config: api::Config) -> anyhow::Result<()> {
 }
 
 /// Prints an error chain as one line naming the command; exit code 2.
+fn check_suite(data: &std::path::Path) -> anyhow::Result<()> {
+    let c = ::eval::suite::check(data)?;
+    println!(
+        "{}: {} trajectories, {} frames ({} on return legs), {}x{}, {}",
+        data.display(),
+        c.trajectories,
+        c.frames,
+        c.returning_frames,
+        c.width,
+        c.height,
+        if c.without_depth == 0 { "depth in every trajectory".to_string() } else { format!("{} without depth", c.without_depth) }
+    );
+    Ok(())
+}
+
 fn report(result: anyhow::Result<()>, command: &str) -> ExitCode {
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -270,7 +270,7 @@ mod tests {
             depth_mm.extend(std::iter::repeat_n(d as u16, n));
         }
         let entry = Entry { dir: "turn".into(), task: "aba".into(), range: 5, frames: 7, returning_point: 6 };
-        Trajectory { entry, intrinsics: k, rgb: vec![0; 7 * n * 3], depth_mm, poses, phase: vec![0, 0, 0, 0, 0, 0, RETURN_PHASE], actions: vec![[0.0; 7]; 7] }
+        Trajectory { entry, intrinsics: k, rgb: vec![0; 7 * n * 3], depth_mm, has_depth: true, poses, phase: vec![0, 0, 0, 0, 0, 0, RETURN_PHASE], actions: vec![[0.0; 7]; 7] }
     }
 
     #[test]

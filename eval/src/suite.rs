@@ -1,4 +1,6 @@
-//! Reading what `worldpack sim loopnav` writes (format in docs/world.md).
+//! Reading and checking suites in the `worldpack-suite/1` format
+//! (docs/dataset.md): what `worldpack sim` and the Doom tool write, and what
+//! anyone's own frames can be written as.
 
 use std::path::{Path, PathBuf};
 
@@ -24,6 +26,10 @@ pub struct Entry {
     pub frames: usize,
     pub returning_point: usize,
 }
+
+/// The format versions this reader understands.
+pub const SUITE_FORMAT: &str = "worldpack-suite/1";
+pub const TRAJECTORY_FORMAT: &str = "worldpack-trajectory/1";
 
 #[derive(Deserialize)]
 struct Index {
@@ -58,6 +64,8 @@ pub struct Trajectory {
     pub rgb: Vec<u8>,
     /// (T, H, W) millimetres along the optical axis, 0 for nothing.
     pub depth_mm: Vec<u16>,
+    /// Whether the suite gave depth (`depth.npy` is optional; without it every pixel reads 0).
+    pub has_depth: bool,
     pub poses: Vec<Pose>,
     /// `world::Phase` as u8: 0 look-around, 1 outbound, 2 return.
     pub phase: Vec<u8>,
@@ -70,6 +78,91 @@ pub const RETURN_PHASE: u8 = 2;
 #[derive(Deserialize)]
 struct Meta {
     intrinsics: Intrinsics,
+}
+
+/// What [`check`] found in a suite that passed.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct Checked {
+    pub trajectories: usize,
+    pub frames: usize,
+    pub returning_frames: usize,
+    /// Trajectories without `depth.npy` (loaded as all-unknown depth).
+    pub without_depth: usize,
+    pub width: u32,
+    pub height: u32,
+}
+
+/// Checks a suite folder against the format, field by field, and loads every
+/// trajectory as `eval`, `plan` and training read it. The first fault is
+/// returned naming its file and field.
+pub fn check(suite: &Path) -> Result<Checked, SuiteError> {
+    let index_path = suite.join("index.json");
+    let text = std::fs::read_to_string(&index_path).map_err(|e| bad(&index_path, e))?;
+    let index: serde_json::Value = serde_json::from_str(&text).map_err(|e| bad(&index_path, format!("not JSON: {e}")))?;
+    expect_format(&index_path, &index, SUITE_FORMAT)?;
+    let list = index
+        .get("trajectories")
+        .and_then(|t| t.as_array())
+        .ok_or_else(|| bad(&index_path, "field `trajectories`: missing or not a list"))?;
+    if list.is_empty() {
+        return Err(bad(&index_path, "field `trajectories`: lists no trajectories"));
+    }
+    let mut checked = Checked { trajectories: 0, frames: 0, returning_frames: 0, without_depth: 0, width: 0, height: 0 };
+    for (i, value) in list.iter().enumerate() {
+        let entry: Entry = serde_json::from_value(value.clone())
+            .map_err(|e| bad(&index_path, format!("field `trajectories[{i}]`: {e}")))?;
+        let dir = suite.join(&entry.dir);
+        if !dir.is_dir() {
+            return Err(bad(&index_path, format!("field `trajectories[{i}].dir`: no folder {}", dir.display())));
+        }
+        let meta_path = dir.join("meta.json");
+        let meta: serde_json::Value = std::fs::read_to_string(&meta_path)
+            .map_err(|e| bad(&meta_path, e))
+            .and_then(|t| serde_json::from_str(&t).map_err(|e| bad(&meta_path, format!("not JSON: {e}"))))?;
+        expect_format(&meta_path, &meta, TRAJECTORY_FORMAT)?;
+        let k: Intrinsics = meta
+            .get("intrinsics")
+            .ok_or_else(|| bad(&meta_path, "field `intrinsics`: missing"))
+            .and_then(|v| serde_json::from_value(v.clone()).map_err(|e| bad(&meta_path, format!("field `intrinsics`: {e}"))))?;
+        k.validated().map_err(|e| bad(&meta_path, format!("field `intrinsics`: {e}")))?;
+        if checked.trajectories > 0 && (k.width, k.height) != (checked.width, checked.height) {
+            return Err(bad(&meta_path, format!("field `intrinsics`: {}x{} frames, the suite's first trajectory has {}x{}",
+                k.width, k.height, checked.width, checked.height)));
+        }
+        let t = Trajectory::load(suite, &entry)?;
+        if t.len() != entry.frames {
+            return Err(bad(&index_path, format!("field `trajectories[{i}].frames`: says {}, the arrays hold {}", entry.frames, t.len())));
+        }
+        if entry.returning_point == 0 || entry.returning_point >= t.len() {
+            return Err(bad(&index_path, format!("field `trajectories[{i}].returning_point`: {} is not a frame after the first (1..{})",
+                entry.returning_point, t.len())));
+        }
+        for (field, value) in [("frames", entry.frames), ("returning_point", entry.returning_point)] {
+            if let Some(m) = meta.get(field).and_then(|v| v.as_u64()) && m as usize != value {
+                return Err(bad(&meta_path, format!("field `{field}`: {m}, index.json says {value}")));
+            }
+        }
+        if let Some(f) = t.phase.iter().position(|&p| p > RETURN_PHASE) {
+            return Err(bad(&dir.join("phase.npy"), format!("frame {f}: phase {} is not 0, 1 or 2", t.phase[f])));
+        }
+        if let Some(f) = t.actions.iter().position(|a| a.iter().any(|v| !v.is_finite())) {
+            return Err(bad(&dir.join("actions.npy"), format!("frame {f}: not finite")));
+        }
+        checked.trajectories += 1;
+        checked.frames += t.len();
+        checked.returning_frames += t.len() - entry.returning_point;
+        checked.without_depth += usize::from(!t.has_depth);
+        (checked.width, checked.height) = (k.width, k.height);
+    }
+    Ok(checked)
+}
+
+fn expect_format(path: &Path, value: &serde_json::Value, want: &str) -> Result<(), SuiteError> {
+    match value.get("format").and_then(|f| f.as_str()) {
+        Some(f) if f == want => Ok(()),
+        Some(f) => Err(bad(path, format!("field `format`: {f:?}, this reader knows {want:?}"))),
+        None => Err(bad(path, format!("field `format`: missing (expected {want:?})"))),
+    }
 }
 
 fn array<T: npy::Element>(dir: &Path, name: &str, tail: &[usize]) -> Result<(usize, Vec<T>), SuiteError> {
@@ -117,7 +210,8 @@ impl Trajectory {
         let k = meta.intrinsics;
         let (w, h) = (k.width as usize, k.height as usize);
         let (n, rgb) = array::<u8>(&dir, "rgb.npy", &[h, w, 3])?;
-        let (nd, depth_mm) = array::<u16>(&dir, "depth.npy", &[h, w])?;
+        let has_depth = dir.join("depth.npy").exists();
+        let (nd, depth_mm) = if has_depth { array::<u16>(&dir, "depth.npy", &[h, w])? } else { (n, vec![0; n * h * w]) };
         let (np, poses) = read_poses(&dir, "poses.npy")?;
         let (nph, phase) = array::<u8>(&dir, "phase.npy", &[])?;
         let (na, a) = array::<f32>(&dir, "actions.npy", &[7])?;
@@ -125,7 +219,7 @@ impl Trajectory {
             return Err(bad(&dir, format!("arrays disagree on the frame count: rgb {n}, depth {nd}, poses {np}, phase {nph}, actions {na}")));
         }
         let actions = a.chunks_exact(7).map(|c| c.try_into().expect("chunks of 7")).collect();
-        Ok(Trajectory { entry: entry.clone(), intrinsics: k, rgb, depth_mm, poses, phase, actions })
+        Ok(Trajectory { entry: entry.clone(), intrinsics: k, rgb, depth_mm, has_depth, poses, phase, actions })
     }
 
     pub fn len(&self) -> usize {

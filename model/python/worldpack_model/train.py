@@ -58,7 +58,10 @@ def resume(ckpt: Path, model: torch.nn.Module, opt: torch.optim.Optimizer, what:
         return 0
     state = torch.load(ckpt, map_location=device, weights_only=False)
     model.load_state_dict(state[key])
-    opt.load_state_dict(state["opt"])
+    if "opt" in state:
+        opt.load_state_dict(state["opt"])
+    else:  # recovered from an export (`recover`): the weights survive, the optimiser's moments do not
+        print(f"{ckpt.name} has no optimiser state: AdamW starts afresh")
     print(f"resuming {what} at step {state['step']}")
     return state["step"]
 

@@ -1,0 +1,81 @@
+#!/usr/bin/env bash
+# Doom end to end (docs/doom.md): data from ViZDoom in the dataset format,
+# the model family trained on it in the paper's order, rollouts on maps never
+# trained on. Each stage resumes or reuses what is done; run them in order,
+# in the background on one thread (THREADS) while you work on the other core.
+#   ./scripts/doom.sh data                 # data/doom-{train,val,test}: 400 / 16 / 48 walks, checked and planned
+#   ./scripts/doom.sh autoencoder          # the voxel autoencoder fine-tuned on Doom frames, then the latent cache
+#   ./scripts/doom.sh baseline             # the 4-frame baseline: baseline_25k fine-tuned on Doom (STEPS, MINUTES)
+#   ./scripts/doom.sh worldpack            # WorldPack with the warp input, from the Doom baseline (STEPS, MINUTES)
+#   ./scripts/doom.sh fusion               # its fusion head: the geometry model
+#   ./scripts/doom.sh eval                 # the held-out maps: every row with paired intervals
+set -euo pipefail
+cd "$(dirname "$0")/.."
+threads="${THREADS:-1}"
+run=runs/doom
+bin=target/release/worldpack
+doom() { (cd doom && PYTHONPATH=. ../.venv-train/bin/python -m worldpack_doom "$@"); }
+recipe=(--context-noise 0.7 --generated-level 0.3)
+minutes=(${MINUTES:+--minutes "$MINUTES"})
+
+case "${1:-}" in
+  data)
+    [ -x "$bin" ] || cargo build --release --bin worldpack
+    .venv-train/bin/python -m pip install --disable-pip-version-check -q -r doom/requirements.txt
+    workers="${WORKERS:-2}"
+    [ -f data/doom-test/index.json ] || doom suite --split test --count 48 --seed 2 --workers "$workers" --out ../data/doom-test
+    [ -f data/doom-val/index.json ] || doom suite --split train --count 16 --seed 3 --workers "$workers" --out ../data/doom-val
+    [ -f data/doom-train/index.json ] || doom suite --split train --count 400 --seed 1 --workers "$workers" --out ../data/doom-train
+    for d in data/doom-test data/doom-val data/doom-train; do "$bin" check --data "$d"; done
+    [ -f data/doom-train/plans.json ] || "$bin" plan --data data/doom-train --memory-need
+    [ -f data/doom-val/plans.json ] || "$bin" plan --data data/doom-val
+    [ -f data/doom-test/plans.json ] || "$bin" plan --data data/doom-test ;;
+  autoencoder)
+    [ -f "$run/init/cdit-baseline.pt" ] || ./scripts/model.sh recover --model fixtures/variants/baseline_25k --run "$run/init"
+    mkdir -p "$run/base"
+    [ -f "$run/base/config.json" ] || cp "$run/init/config.json" "$run/base/config.json"
+    [ -f "$run/base/autoencoder.pt" ] || cp "$run/init/autoencoder.pt" "$run/base/autoencoder.pt"
+    ./scripts/model.sh train-ae --data data/doom-train --run "$run/base" --steps "${STEPS:-3000}" --threads "$threads" "${minutes[@]}"
+    ./scripts/model.sh encode --data data/doom-train --run "$run/base" --threads "$threads" ;;
+  baseline)
+    ./scripts/model.sh train --data data/doom-train --run "$run/base" --policy baseline --steps "${STEPS:-3000}" \
+        --init-from "$run/init/cdit-baseline.pt" --threads "$threads" "${recipe[@]}" "${minutes[@]}"
+    ./scripts/model.sh export --run "$run/base" --policy baseline --layouts baseline --data data/doom-val \
+        --out "$run/base/model/baseline" --half --threads "$threads" ;;
+  worldpack)
+    w="$run/worldpack"
+    mkdir -p "$w"
+    [ -e "$w/autoencoder.pt" ] || ln -s "$PWD/$run/base/autoencoder.pt" "$w/autoencoder.pt"
+    [ -e "$w/latents" ] || ln -s "$PWD/$run/base/latents" "$w/latents"
+    if [ ! -f "$w/config.json" ]; then
+      # Where-it-lands positions (metres) and the Doom camera's focal length over the width.
+      .venv-train/bin/python - "$run/base/config.json" "$w/config.json" data/doom-train <<'PY'
+import json, sys, pathlib
+c = json.load(open(sys.argv[1]))
+index = json.load(open(pathlib.Path(sys.argv[3]) / "index.json"))
+k = json.load(open(pathlib.Path(sys.argv[3]) / index["trajectories"][0]["dir"] / "meta.json"))["intrinsics"]
+c["cdit"]["landing_depths"] = [2.0, 6.0, 20.0]
+c["cdit"]["focal"] = k["fx"] / k["width"]
+json.dump(c, open(sys.argv[2], "w"), indent=2)
+PY
+    fi
+    ./scripts/model.sh train --data data/doom-train --run "$w" --policy worldpack --steps "${STEPS:-3000}" \
+        --init-from "$run/base/cdit-baseline.pt" --threads "$threads" --memory-focus 0.5 --warp "${recipe[@]}" "${minutes[@]}"
+    ./scripts/model.sh export --run "$w" --policy worldpack --layouts worldpack --data data/doom-val \
+        --out "$w/model/worldpack" --half --threads "$threads" ;;
+  fusion)
+    m="$run/worldpack/model/worldpack"
+    [ -f "$run/fusion-data/truth.npy" ] || "$bin" fusion-data --suite data/doom-train --model "$m" --stride 2 \
+        --limit "${LIMIT:-120}" --threads "$threads" --out "$run/fusion-data"
+    ./scripts/model.sh fusion-train --data "$run/fusion-data" --run "$run/fusion" --steps "${STEPS:-2000}" --threads "$threads" "${minutes[@]}"
+    ./scripts/model.sh fusion-export --run "$run/fusion" --model "$m" --out "$run/geometry_fused" --data "$run/fusion-data" ;;
+  eval)
+    mkdir -p "$run/models"
+    ln -sfn "$PWD/$run/base/model/baseline" "$run/models/baseline"
+    "$bin" eval --suite data/doom-test --models "$run/models" --policies baseline --threads "${EVAL_THREADS:-2}" \
+        --extra worldpack="$run/worldpack/model/worldpack" --plan-warps worldpack \
+        --extra geometry_fused="$run/geometry_fused" --covisible geometry_fused \
+        --against baseline --strip geometry_fused_covisible,worldpack_plan_warps,baseline,reproject_fused \
+        --out "$run/eval-test" "${@:2}" ;;
+  *) echo "usage: $0 data | autoencoder | baseline | worldpack | fusion | eval" >&2; exit 2 ;;
+esac
