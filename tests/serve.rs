@@ -1,127 +1,18 @@
 //! The REST server as users meet it: the real `worldpack serve` process on
 //! loopback, real HTTP, a real store on disk, SIGKILL and restart.
 
+mod support;
+
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
-use std::sync::{LazyLock, Mutex};
+use std::sync::Mutex;
 use std::time::Duration;
 
 use base64::Engine;
 use base64::engine::general_purpose::STANDARD as B64;
 use serde_json::{Value, json};
-
-/// Every request of these tests: a server or Triton that stops answering
-/// fails its test within minutes instead of hanging the whole run.
-static HTTP: LazyLock<ureq::Agent> =
-    LazyLock::new(|| ureq::AgentBuilder::new().timeout_connect(Duration::from_secs(10)).timeout(Duration::from_secs(300)).build());
-
-struct Server {
-    child: Child,
-    url: String,
-    /// Held so the server's stdout stays open for as long as it runs.
-    _stdout: BufReader<std::process::ChildStdout>,
-}
-
-impl Server {
-    /// Starts `worldpack serve` on a free port with the store at `store`.
-    fn start(store: &Path, extra: &[&str]) -> Server {
-        let fixture = concat!(env!("CARGO_MANIFEST_DIR"), "/fixtures/small");
-        let mut args = vec!["serve", "--addr", "127.0.0.1:0", "--store", store.to_str().unwrap(), "--steps", "2"];
-        if !extra.contains(&"--memory-only") && !extra.contains(&"--model") {
-            args.extend(["--model", fixture]);
-        }
-        args.extend(extra);
-        let mut child = Command::new(env!("CARGO_BIN_EXE_worldpack")).args(&args).stdout(Stdio::piped()).stderr(Stdio::inherit()).spawn().unwrap();
-        let mut line = String::new();
-        let mut stdout = BufReader::new(child.stdout.take().unwrap());
-        stdout.read_line(&mut line).unwrap();
-        let url = line.split("listening on ").nth(1).and_then(|r| r.split_whitespace().next()).unwrap_or_else(|| panic!("no address in {line:?}")).to_string();
-        Server { child, url, _stdout: stdout }
-    }
-
-    fn kill(mut self) {
-        let _ = self.child.kill(); // SIGKILL
-        let _ = self.child.wait();
-    }
-
-    fn post(&self, path: &str, body: &Value) -> (u16, Value) {
-        answer(HTTP.post(&format!("{}{path}", self.url)).set("Content-Type", "application/json").send_string(&body.to_string()))
-    }
-
-    fn get(&self, path: &str) -> (u16, Value) {
-        answer(HTTP.get(&format!("{}{path}", self.url)).call())
-    }
-
-    fn bytes(&self, path: &str) -> Vec<u8> {
-        let mut out = Vec::new();
-        HTTP.get(&format!("{}{path}", self.url)).call().unwrap().into_reader().read_to_end(&mut out).unwrap();
-        out
-    }
-}
-
-impl Drop for Server {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
-}
-
-use std::io::Read;
-
-fn answer(r: Result<ureq::Response, ureq::Error>) -> (u16, Value) {
-    match r {
-        Ok(resp) => (resp.status(), resp.into_json().unwrap_or(Value::Null)),
-        Err(ureq::Error::Status(code, resp)) => (code, resp.into_json().unwrap_or(Value::Null)),
-        Err(e) => panic!("transport error: {e}"),
-    }
-}
-
-/// Posts a body of `length` bytes, writing until the server stops reading, then reads the answer.
-fn oversized_post(url: &str, path: &str, length: usize) -> (u16, Value) {
-    use std::io::Write;
-    let addr = url.trim_start_matches("http://");
-    let mut stream = std::net::TcpStream::connect(addr).unwrap();
-    write!(stream, "POST {path} HTTP/1.1\r\nHost: {addr}\r\nContent-Type: application/json\r\nContent-Length: {length}\r\n\r\n").unwrap();
-    let chunk = vec![b'x'; 1 << 16];
-    let mut sent = 0;
-    while sent < length {
-        let n = chunk.len().min(length - sent);
-        if stream.write_all(&chunk[..n]).is_err() {
-            break; // the server answered and closed
-        }
-        sent += n;
-    }
-    stream.set_read_timeout(Some(Duration::from_secs(30))).unwrap();
-    let mut reader = BufReader::new(stream);
-    let mut status = String::new();
-    reader.read_line(&mut status).unwrap();
-    let code: u16 = status.split_whitespace().nth(1).and_then(|c| c.parse().ok()).unwrap_or_else(|| panic!("no status in {status:?}"));
-    let mut body_len = 0;
-    loop {
-        let mut line = String::new();
-        reader.read_line(&mut line).unwrap();
-        if line.trim().is_empty() {
-            break;
-        }
-        if let Some(v) = line.to_ascii_lowercase().strip_prefix("content-length:") {
-            body_len = v.trim().parse().unwrap();
-        }
-    }
-    let mut body = vec![0; body_len];
-    reader.read_exact(&mut body).unwrap();
-    (code, serde_json::from_slice(&body).unwrap_or(Value::Null))
-}
-
-fn temp_store(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("worldpack-serve-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    dir.join("store.redb")
-}
-
-fn c2w(position: [f64; 3]) -> Value {
-    json!({ "c2w": { "rotation": [[1, 0, 0], [0, 1, 0], [0, 0, 1]], "position": position } })
-}
+use support::*;
 
 #[test]
 fn a_synthetic_session_steps_observes_selects_and_reads_back() {
@@ -367,72 +258,6 @@ fn acknowledged_writes_survive_sigkill(store: &Path) {
 
 /// A throwaway PostgreSQL 15 cluster on a loopback port (initdb refuses to
 /// run as root, so as root it runs as the `postgres` user), removed on drop.
-struct PgCluster {
-    dir: PathBuf,
-    port: u16,
-}
-
-impl PgCluster {
-    fn bin(name: &str) -> PathBuf {
-        let debian = Path::new("/usr/lib/postgresql/15/bin").join(name);
-        if debian.exists() { debian } else { PathBuf::from(name) }
-    }
-
-    fn as_owner(program: PathBuf) -> Command {
-        // SAFETY: geteuid has no preconditions.
-        if unsafe { libc_geteuid() } == 0 {
-            let mut c = Command::new("runuser");
-            c.args(["-u", "postgres", "--"]).arg(program);
-            c
-        } else {
-            Command::new(program)
-        }
-    }
-
-    fn run(mut c: Command, what: &str) {
-        let out = c.output().unwrap_or_else(|e| panic!("{what}: {e} (PostgreSQL 15 must be installed)"));
-        assert!(out.status.success(), "{what}: {}{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
-    }
-
-    fn start(name: &str) -> PgCluster {
-        let dir = std::env::temp_dir().join(format!("worldpack-pg-{name}-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
-        std::fs::create_dir_all(&dir).unwrap();
-        if unsafe { libc_geteuid() } == 0 {
-            Self::run({ let mut c = Command::new("chown"); c.args(["-R", "postgres:postgres"]).arg(&dir); c }, "chown");
-        }
-        let port = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port();
-        let data = dir.join("data");
-        let mut init = Self::as_owner(Self::bin("initdb"));
-        init.args(["-A", "trust", "-U", "postgres", "-D"]).arg(&data);
-        Self::run(init, "initdb");
-        let mut ctl = Self::as_owner(Self::bin("pg_ctl"));
-        ctl.arg("-D").arg(&data).arg("-l").arg(dir.join("log")).arg("-w").arg("-o")
-            .arg(format!("-p {port} -c listen_addresses=127.0.0.1 -k {}", dir.display())).arg("start");
-        Self::run(ctl, "pg_ctl start");
-        PgCluster { dir, port }
-    }
-
-    fn url(&self) -> PathBuf {
-        PathBuf::from(format!("postgres://postgres@127.0.0.1:{}/postgres", self.port))
-    }
-}
-
-impl PgCluster {
-    fn stop(&self) {
-        let mut ctl = Self::as_owner(Self::bin("pg_ctl"));
-        ctl.arg("-D").arg(self.dir.join("data")).args(["-m", "fast", "-w", "stop"]);
-        Self::run(ctl, "pg_ctl stop");
-    }
-
-    fn restart(&self) {
-        let mut ctl = Self::as_owner(Self::bin("pg_ctl"));
-        ctl.arg("-D").arg(self.dir.join("data")).arg("-l").arg(self.dir.join("log")).arg("-w").arg("-o")
-            .arg(format!("-p {} -c listen_addresses=127.0.0.1 -k {}", self.port, self.dir.display())).arg("start");
-        Self::run(ctl, "pg_ctl start");
-    }
-}
-
 /// PostgreSQL stopped under a running server: steps and observes answer 503
 /// naming the store, nothing half-written shows, and service resumes when
 /// the database is back.
@@ -456,22 +281,6 @@ fn a_stopped_database_answers_503_and_service_resumes() {
     let s = Server::start(&pg.url(), &[]);
     let (code, r) = s.get(&format!("/v1/sessions/{id}"));
     assert_eq!((code, r["frames"].as_u64()), (200, Some(3)), "{r}");
-}
-
-impl Drop for PgCluster {
-    fn drop(&mut self) {
-        let mut ctl = Self::as_owner(Self::bin("pg_ctl"));
-        ctl.arg("-D").arg(self.dir.join("data")).args(["-m", "immediate", "stop"]);
-        let _ = ctl.output();
-        let _ = std::fs::remove_dir_all(&self.dir);
-    }
-}
-
-unsafe extern "C" {
-    #[link_name = "geteuid"]
-    fn libc_geteuid() -> u32;
-    #[link_name = "kill"]
-    fn libc_kill(pid: i32, signal: i32) -> i32;
 }
 
 /// Two replicas on one PostgreSQL, sharing nothing else: 16 sessions made on

@@ -187,7 +187,7 @@ impl Server {
             config.model.as_ref().map_or("none (memory only)".into(), |p| p.display().to_string()),
             state.engine.model.as_ref().map_or("-", |m| m.provider()),
             config.model_backend.as_ref().map_or(String::new(), |url| format!(" at {url}")),
-            config.store.display()
+            Store::describe(&config.store)
         );
         Ok(Server { listener, router, description })
     }

@@ -28,6 +28,7 @@ pub const MAX_COORDINATE: f64 = 1e9;
     ),
     paths(
         routes::health,
+        routes::ready,
         routes::metrics,
         routes::create,
         routes::describe,

@@ -50,6 +50,27 @@ fn db(e: postgres::Error) -> StoreError {
     }
 }
 
+/// A connection string fit to print or answer: the password replaced by
+/// `***` (`postgres://user:***@host/db`, or `password=***` in the key=value form).
+pub fn redacted(url: &str) -> String {
+    if let Some((scheme, rest)) = url.split_once("://") {
+        let (authority, tail) = rest.split_at(rest.find(['/', '?']).unwrap_or(rest.len()));
+        if let Some((userinfo, host)) = authority.rsplit_once('@')
+            && let Some((user, _password)) = userinfo.split_once(':')
+        {
+            return format!("{scheme}://{user}:***@{host}{tail}");
+        }
+        return url.to_string();
+    }
+    url.split_whitespace()
+        .map(|kv| match kv.split_once('=') {
+            Some((k, _)) if k.eq_ignore_ascii_case("password") => format!("{k}=***"),
+            _ => kv.to_string(),
+        })
+        .collect::<Vec<_>>()
+        .join(" ")
+}
+
 fn id(v: u64) -> Result<i64, StoreError> {
     i64::try_from(v).map_err(|_| err(format!("id {v} does not fit PostgreSQL's BIGINT")))
 }
@@ -69,15 +90,24 @@ fn frame_of(row: &postgres::Row) -> Result<FrameRecord, StoreError> {
     })
 }
 
+impl Drop for PgStore {
+    /// A `postgres::Client` closes on a Tokio runtime of its own, which cannot
+    /// start inside the server's: the clients are dropped on a plain thread.
+    fn drop(&mut self) {
+        let clients = std::mem::take(&mut self.clients);
+        let _ = std::thread::spawn(move || drop(clients)).join();
+    }
+}
+
 impl PgStore {
     /// Connects and brings the schema to the newest version.
     pub fn connect(url: &str) -> Result<PgStore, StoreError> {
-        let mut client = Client::connect(url, NoTls).map_err(|e| StoreError::Unavailable(format!("{url}: {e}")))?;
+        let mut client = Client::connect(url, NoTls).map_err(|e| StoreError::Unavailable(format!("{}: {e}", redacted(url))))?;
         let mut txn = client.transaction().map_err(db)?;
         txn.batch_execute("CREATE TABLE IF NOT EXISTS schema_version (version INT NOT NULL); LOCK TABLE schema_version;").map_err(db)?;
         let current: i32 = txn.query_one("SELECT coalesce(max(version), 0) FROM schema_version", &[]).map_err(db)?.get(0);
         if current as usize > MIGRATIONS.len() {
-            return Err(err(format!("{url}: schema version {current} is newer than this server's {}", MIGRATIONS.len())));
+            return Err(err(format!("{}: schema version {current} is newer than this server's {}", redacted(url), MIGRATIONS.len())));
         }
         for (i, sql) in MIGRATIONS.iter().enumerate().skip(current as usize) {
             txn.batch_execute(sql).map_err(db)?;
@@ -86,7 +116,7 @@ impl PgStore {
         txn.commit().map_err(db)?;
         let mut clients = vec![Mutex::new(client)];
         for _ in 1..CONNECTIONS {
-            clients.push(Mutex::new(Client::connect(url, NoTls).map_err(|e| StoreError::Unavailable(format!("{url}: {e}")))?));
+            clients.push(Mutex::new(Client::connect(url, NoTls).map_err(|e| StoreError::Unavailable(format!("{}: {e}", redacted(url))))?));
         }
         Ok(PgStore { url: url.to_string(), clients, next: Default::default() })
     }
@@ -104,9 +134,14 @@ impl PgStore {
             }
         };
         if client.is_closed() {
-            *client = Client::connect(&self.url, NoTls).map_err(|e| StoreError::Unavailable(format!("{}: {e}", self.url)))?;
+            *client = Client::connect(&self.url, NoTls).map_err(|e| StoreError::Unavailable(format!("{}: {e}", redacted(&self.url))))?;
         }
         Ok(client)
+    }
+
+    /// One round trip: whether the database answers now.
+    pub fn ping(&self) -> Result<(), StoreError> {
+        self.client()?.simple_query("SELECT 1").map(|_| ()).map_err(db)
     }
 
     pub fn create_session(&self, record: &SessionRecord, first: &FrameRecord) -> Result<u64, StoreError> {

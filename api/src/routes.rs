@@ -44,6 +44,7 @@ pub fn router(state: Arc<AppState>) -> Router {
         .route("/", get(|| async { axum::response::Redirect::to("/viewer") }))
         .route("/viewer", get(|| async { axum::response::Html(VIEWER) }))
         .route("/v1/health", get(health))
+        .route("/v1/ready", get(ready))
         .route("/metrics", get(metrics))
         .route("/v1/sessions", post(create))
         .route("/v1/sessions/{id}", get(describe).delete(delete))
@@ -213,6 +214,29 @@ pub async fn health(State(st): St) -> Json<Health> {
         provider: st.engine.model.as_ref().map(|m| m.provider().to_string()),
         sessions: st.sessions.read().unwrap().len(),
     })
+}
+
+#[utoipa::path(get, path = "/v1/ready", summary = "Readiness: whether every dependency (the store, a remote model backend) answers now",
+    responses((status = 200, body = Readiness), (status = 503, body = Readiness, description = "a dependency is down: each one is named with why",
+        headers(("Retry-After" = String, description = "seconds before asking again")))))]
+pub async fn ready(State(st): St) -> Response {
+    let checked = st.clone();
+    let (store, model) = tokio::task::spawn_blocking(move || {
+        let store = checked.engine.store.ping().map_err(|e| e.to_string());
+        let model = checked.engine.model.as_ref().map_or(Ok(()), |m| m.ready().map_err(|e| e.to_string()));
+        (store, model)
+    })
+    .await
+    .unwrap_or_else(|e| (Err(e.to_string()), Err("not checked".into())));
+    let down: Vec<Dependency> = [("store", store), ("model", model)]
+        .into_iter()
+        .filter_map(|(name, r)| r.err().map(|message| Dependency { name: name.into(), message }))
+        .collect();
+    let body = Readiness { ready: down.is_empty(), down };
+    if body.ready {
+        return (StatusCode::OK, Json(body)).into_response();
+    }
+    (StatusCode::SERVICE_UNAVAILABLE, [(axum::http::header::RETRY_AFTER, crate::error::RETRY_AFTER_S)], Json(body)).into_response()
 }
 
 #[utoipa::path(get, path = "/metrics", summary = "Prometheus counters: steps, observes, selects, sessions, step seconds, shared-store catch-ups",
@@ -732,6 +756,21 @@ pub struct ErrorBody {
 pub struct ErrorDetail {
     #[schema(example = "action.yaw_deg")]
     pub field: String,
+    pub message: String,
+}
+
+#[derive(Serialize, ToSchema)]
+pub struct Readiness {
+    pub ready: bool,
+    /// The dependencies that did not answer, each with why (empty when ready).
+    pub down: Vec<Dependency>,
+}
+
+#[derive(Serialize, ToSchema)]
+pub struct Dependency {
+    /// `store` or `model`.
+    #[schema(example = "store")]
+    pub name: String,
     pub message: String,
 }
 

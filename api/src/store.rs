@@ -127,12 +127,30 @@ macro_rules! each_backend {
 impl Store {
     /// A `postgres://` (or `postgresql://`) URL connects to PostgreSQL and
     /// migrates its schema; any other path opens or creates a redb file.
+    /// How the store is named in logs and answers: a PostgreSQL URL without its password.
+    pub fn describe(path: &Path) -> String {
+        let text = path.to_string_lossy();
+        if text.starts_with("postgres://") || text.starts_with("postgresql://") {
+            crate::postgres_store::redacted(&text)
+        } else {
+            path.display().to_string()
+        }
+    }
+
     pub fn open(path: &Path) -> Result<Store, StoreError> {
         let text = path.to_string_lossy();
         if text.starts_with("postgres://") || text.starts_with("postgresql://") {
             Ok(Store::Postgres(crate::postgres_store::PgStore::connect(&text)?))
         } else {
             Ok(Store::Redb(RedbStore::open(path)?))
+        }
+    }
+
+    /// Whether the store answers now (a redb file always does once open).
+    pub fn ping(&self) -> Result<(), StoreError> {
+        match self {
+            Store::Postgres(s) => s.ping(),
+            Store::Redb(_) => Ok(()),
         }
     }
 

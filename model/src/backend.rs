@@ -26,6 +26,10 @@ pub trait Backend: Send + Sync {
     fn run(&self, role: GraphRole, inputs: &[(&str, &Tensor)]) -> Result<Vec<Tensor>, ModelError>;
     /// The execution provider that runs the denoiser (`cpu`, `cuda`, or a server's name).
     fn provider(&self) -> &str;
+    /// Whether the graphs can run now (a remote server answering ready); in-process graphs always can.
+    fn ready(&self) -> Result<(), ModelError> {
+        Ok(())
+    }
     /// The in-process graphs, when this backend has them (the parity tests and `bench step` use them).
     fn local(&self) -> Option<&LocalGraphs> {
         None

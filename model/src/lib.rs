@@ -85,6 +85,11 @@ impl Model {
     }
 
     /// The execution provider that runs the denoiser.
+    /// Whether the model's graphs can run now ([`Backend::ready`]).
+    pub fn ready(&self) -> Result<(), ModelError> {
+        self.backend.ready()
+    }
+
     pub fn provider(&self) -> &str {
         self.backend.provider()
     }

@@ -101,6 +101,10 @@ impl TritonBackend {
 }
 
 impl Backend for TritonBackend {
+    fn ready(&self) -> Result<(), ModelError> {
+        self.agent.get(&format!("{}/v2/health/ready", self.base)).call().map(|_| ()).map_err(|e| call_error(&self.base, e))
+    }
+
     fn run(&self, role: GraphRole, inputs: &[(&str, &Tensor)]) -> Result<Vec<Tensor>, ModelError> {
         let graph = self.graph(role)?;
         let ordered = graph.spec.ordered_inputs(inputs)?;
