@@ -19,6 +19,14 @@ def trajectories(root: Path) -> list[Path]:
     return [root / t["dir"] for t in json.loads(index.read_text())["trajectories"]]
 
 
+def describe(root: Path) -> dict:
+    """Where a model's training frames came from, for its manifest: the suite's
+    folder name and what its index says of itself (docs/dataset.md)."""
+    index = json.loads((root / "index.json").read_text())
+    return {"suite": root.name, "kind": index.get("kind"), "split": index.get("split"), "maps": index.get("maps"),
+            "trajectories": len(index["trajectories"])}
+
+
 def to_unit_range(rgb_u8: np.ndarray) -> np.ndarray:
     """(..., H, W, 3) uint8 -> (..., 3, H, W) float32 in [-1, 1]."""
     x = rgb_u8.astype(np.float32) / 127.5 - 1.0

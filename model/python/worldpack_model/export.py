@@ -196,7 +196,9 @@ def export(run: Path, policy: str, layout_names: list[str], data: Path, out: Pat
     log = [json.loads(l) for l in (run / "log.jsonl").read_text().splitlines()] if (run / "log.jsonl").exists() else []
     last = lambda stage: next((r for r in reversed(log) if r["stage"] == stage), {})
     training = {
-        "data": {"source": "worldpack sim dataset (training world seeds)", "frame_size": [cfg.autoencoder.image_size] * 2},
+        # Checkpoints from before they recorded their data were all trained on `worldpack sim dataset`.
+        "data": {**ckpt.get("data", {"source": "worldpack sim dataset (training world seeds)"}),
+                 "frame_size": [cfg.autoencoder.image_size] * 2},
         "policy": policy, "steps": ckpt["step"],
         "init_from": ckpt.get("init_from"), "memory_focus": ckpt.get("memory_focus", 0.0),
         "recipe": ckpt.get("recipe", {}),

@@ -241,7 +241,7 @@ def train_cdit(data: Path, run: Path, policy: str, steps: int, batch: int, lr: f
     started, seen = time.time(), 0
     checkpoint = lambda: save(ckpt, model=model.state_dict(), ema=ema.state_dict(), opt=opt.state_dict(), step=step,
                               policy=policy, memory_focus=memory_focus, init_from=origin, recipe=recipe.to_json(),
-                              plans_query=source.plans_query)
+                              plans_query=source.plans_query, data=wdata.describe(data))
     while step < steps and time.time() < deadline:
         drawn = source.batch(rng, batch)
         x0, action, rel_time, groups = augment(drawn, ema)
