@@ -93,6 +93,20 @@ enum Command {
         /// (swept every quarter of it, at most every minute; 0: keep them until deleted).
         #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u64).range(0..=10 * 365 * 86_400))]
         retain_idle_secs: u64,
+        /// API tokens: a file of lines `TENANT sha256:HEX [sessions=N] [rate=R]` (the SHA-256 of each
+        /// token, never the token). Tokens may also come from the environment, WORLDPACK_TOKENS=TENANT:TOKEN,...;
+        /// with either, every /v1 route needs `Authorization: Bearer <token>` (docs/api.md).
+        #[arg(long)]
+        tokens_file: Option<PathBuf>,
+        /// Live sessions a tenant may own at once, unless its line in the tokens file says otherwise.
+        #[arg(long, default_value_t = 64, value_parser = clap::value_parser!(u64).range(1..=1_000_000))]
+        max_sessions_per_tenant: u64,
+        /// Requests a second a tenant may make (bursts of twice that), unless its line says otherwise.
+        #[arg(long, default_value_t = 50.0)]
+        rate_per_tenant: f64,
+        /// Serve a non-loopback --addr without tokens: anyone who reaches it may use every session.
+        #[arg(long)]
+        allow_unauthenticated: bool,
     },
     /// Benchmarks (tables on stdout; --json for machines).
     Bench {
@@ -383,8 +397,23 @@ fn main() -> ExitCode {
                 report(sim::render_one(&out, seed, pose, biome, size, probe), "sim render")
             }
         },
-        Command::Serve { model, memory_only, model_backend, store, addr, provider, threads, steps, method, policy, max_queue, max_inflight, overlay_warp, covisible, batch_window_ms, batch_max, retain_idle_secs } => {
+        Command::Serve { model, memory_only, model_backend, store, addr, provider, threads, steps, method, policy, max_queue, max_inflight, overlay_warp, covisible, batch_window_ms, batch_max, retain_idle_secs, tokens_file, max_sessions_per_tenant, rate_per_tenant, allow_unauthenticated } => {
+            if !(rate_per_tenant.is_finite() && rate_per_tenant > 0.0) {
+                eprintln!("worldpack serve: --rate-per-tenant: must be a positive number, got {rate_per_tenant}");
+                return ExitCode::from(2);
+            }
+            let limits = api::auth::Limits { sessions: max_sessions_per_tenant as usize, rate: rate_per_tenant };
+            let env = std::env::var(api::auth::TOKENS_ENV).ok();
+            let tokens = match api::auth::Tokens::load(tokens_file.as_deref(), env.as_deref(), &limits) {
+                Ok(t) => std::sync::Arc::new(t),
+                Err(e) => {
+                    eprintln!("worldpack serve: {e}");
+                    return ExitCode::from(2);
+                }
+            };
             let config = api::Config {
+                tokens,
+                allow_unauthenticated,
                 addr,
                 store,
                 model: (!memory_only).then_some(model),

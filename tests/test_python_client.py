@@ -6,6 +6,7 @@ import socket
 import subprocess
 import threading
 import time
+import urllib.error
 import urllib.request
 from pathlib import Path
 
@@ -20,16 +21,19 @@ ROOT = Path(__file__).resolve().parent.parent
 BIN = os.environ.get("WORLDPACK_BIN", str(ROOT / "target" / "release" / "worldpack"))
 
 
-def start(tmp, *flags):
+def start(tmp, *flags, env=None):
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
     proc = subprocess.Popen([BIN, "serve", "--store", str(tmp / "store.redb"), "--addr", f"127.0.0.1:{port}", *flags],
-                            cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+                            cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                            env={**os.environ, **(env or {})})
     url = f"http://127.0.0.1:{port}"
     for _ in range(300):
         try:
             urllib.request.urlopen(url + "/v1/health", timeout=1)
+            return proc, url
+        except urllib.error.HTTPError:  # answering (401: it has tokens)
             return proc, url
         except OSError:
             if proc.poll() is not None:
@@ -158,3 +162,27 @@ def test_an_observing_step_records_the_worlds_frame_and_depth(server):
     np.testing.assert_array_equal(c.frame_image(session, step.index), step.image)
     generated = c.step(session, {"forward": True})
     assert generated.raw["source"] == "generated" and generated.truth["psnr_db"] > 0
+
+
+def test_a_client_with_a_token_is_let_in_and_one_without_is_told_why(tmp_path, monkeypatch):
+    proc, url = start(tmp_path, "--steps", "2", env={"WORLDPACK_TOKENS": "acme:tok-acme,beta:tok-beta"})
+    try:
+        monkeypatch.delenv("WORLDPACK_TOKEN", raising=False)
+        with pytest.raises(WorldPackError) as e:
+            Client(url).health()
+        assert (e.value.status, e.value.field) == (401, "authorization")
+        acme = Client(url, token="tok-acme")
+        sid = acme.create_session(synthetic_seed=3)
+        assert acme.step(sid, {"forward": True}).index == 1
+        assert "tok-acme" not in repr(acme), "the token is never printed"
+        with pytest.raises(WorldPackError) as e:
+            Client(url, token="tok-beta").session(sid)
+        assert (e.value.status, e.value.field) == (404, "session"), "another tenant's session is not there"
+        monkeypatch.setenv("WORLDPACK_TOKEN", "tok-acme")
+        env = WorldPackEnv(Client(url), max_steps=2)
+        obs, _ = env.reset(seed=3)
+        assert obs["frame"].shape == (64, 64, 3)
+        env.close()
+    finally:
+        proc.terminate()
+        proc.wait(timeout=30)

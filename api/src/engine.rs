@@ -94,14 +94,14 @@ impl Engine {
     }
 
     /// A new session in the synthetic world: spawn (in `biome` if given), render, store.
-    pub fn create_synthetic(&self, policy: serde_json::Value, seed: u64, biome: Option<world::Biome>) -> Result<Session, ApiError> {
+    pub fn create_synthetic(&self, policy: serde_json::Value, seed: u64, biome: Option<world::Biome>, tenant: Option<String>) -> Result<Session, ApiError> {
         let k = self.synthetic_camera()?;
         let world = self.world(seed);
         let cell = world::agent::spawn_point(&world, biome)
             .ok_or_else(|| ApiError::bad("synthetic.biome", "this world has no standable spawn in that biome"))?;
         let player = PlayerState::at_cell(cell, 0.0);
         let (first, _) = self.world_frame(&world, &k, 0, None, &player)?;
-        self.create(SessionRecord { policy, intrinsics: k, world_seed: Some(seed) }, vec![first], Some(world))
+        self.create(SessionRecord { policy, intrinsics: k, world_seed: Some(seed), tenant }, vec![first], Some(world))
     }
 
     /// What the synthetic world shows `player`'s camera, as an observed frame

@@ -2,6 +2,7 @@
 //! that generates the next frame from a packed memory context, and a durable
 //! store underneath. See docs/api.md.
 
+pub mod auth;
 pub mod batch;
 pub mod engine;
 pub mod error;
@@ -65,6 +66,10 @@ pub struct Config {
     /// Retention: sessions that no frame was written to for this long are
     /// deleted (`retention`); None: kept until deleted.
     pub retain_idle: Option<Duration>,
+    /// API tokens and their tenants (`auth`); empty: every request is let in.
+    pub tokens: Arc<auth::Tokens>,
+    /// Serve a non-loopback address without tokens (otherwise refused).
+    pub allow_unauthenticated: bool,
 }
 
 impl Default for Config {
@@ -87,6 +92,8 @@ impl Default for Config {
             batch_window: None,
             batch_max: 16,
             retain_idle: None,
+            tokens: Arc::default(),
+            allow_unauthenticated: false,
         }
     }
 }
@@ -95,6 +102,15 @@ impl Default for Config {
 pub(crate) struct Slot {
     pub session: Arc<tokio::sync::Mutex<Session>>,
     pub waiting: AtomicUsize,
+    /// The tenant that owns the session (`SessionRecord::tenant`), readable without its lock.
+    pub owner: Option<String>,
+}
+
+impl Slot {
+    pub fn new(session: Session) -> Slot {
+        let owner = session.record.tenant.clone();
+        Slot { session: Arc::new(tokio::sync::Mutex::new(session)), waiting: AtomicUsize::new(0), owner }
+    }
 }
 
 #[derive(Default)]
@@ -114,6 +130,7 @@ pub(crate) struct Metrics {
 
 pub(crate) struct AppState {
     pub config: Config,
+    pub tokens: Arc<auth::Tokens>,
     pub engine: Engine,
     pub sessions: RwLock<HashMap<u64, Arc<Slot>>>,
     pub inflight: Semaphore,
@@ -158,7 +175,16 @@ impl Server {
         engine.overlay_warp = config.overlay_warp;
         engine.covisible = config.covisible;
         engine.batcher = config.batch_window.map(|w| batch::Batcher::new(w, config.batch_max));
+        if !config.addr.ip().is_loopback() && !config.tokens.enabled() && !config.allow_unauthenticated {
+            return Err(format!(
+                "--addr {}: anyone who can reach this address could read, step and delete every session; give tokens \
+                 (--tokens-file, or {} in the environment) or pass --allow-unauthenticated",
+                config.addr,
+                auth::TOKENS_ENV
+            ));
+        }
         let state = Arc::new(AppState {
+            tokens: config.tokens.clone(),
             inflight: Semaphore::new(config.max_inflight),
             engine,
             sessions: RwLock::new(HashMap::new()),
@@ -171,23 +197,24 @@ impl Server {
             let world = record.world_seed.map(|s| state.engine.world(s));
             let s = Session::restore(id, record, frames, world).map_err(|e| format!("restoring session {id}: {}", e.message))?;
             restored += 1;
-            let slot = Slot { session: Arc::new(tokio::sync::Mutex::new(s)), waiting: AtomicUsize::new(0) };
-            state.sessions.write().unwrap().insert(id, Arc::new(slot));
+            state.sessions.write().unwrap().insert(id, Arc::new(Slot::new(s)));
         }
         if let Some(idle) = config.retain_idle {
             tokio::spawn(retention::expire_idle_sessions(state.clone(), idle));
         }
         let router = routes::router(state.clone())
+            .layer(axum::middleware::from_fn_with_state(config.tokens.clone(), auth::authenticate))
             .layer(DefaultBodyLimit::max(config.max_body_bytes))
             .layer(tower_http::timeout::TimeoutLayer::with_status_code(axum::http::StatusCode::REQUEST_TIMEOUT, config.request_timeout));
         let listener = tokio::net::TcpListener::bind(config.addr).await.map_err(|e| format!("--addr {}: {e}", config.addr))?;
         let addr = listener.local_addr().map_err(|e| e.to_string())?;
         let description = format!(
-            "listening on http://{addr} (model: {}, provider: {}{}, store: {}, {restored} sessions restored)",
+            "listening on http://{addr} (model: {}, provider: {}{}, store: {}, {restored} sessions restored, {})",
             config.model.as_ref().map_or("none (memory only)".into(), |p| p.display().to_string()),
             state.engine.model.as_ref().map_or("-", |m| m.provider()),
             config.model_backend.as_ref().map_or(String::new(), |url| format!(" at {url}")),
-            Store::describe(&config.store)
+            Store::describe(&config.store),
+            if config.tokens.enabled() { format!("tokens for tenants {}", config.tokens.tenants().join(", ")) } else { "no tokens: open".into() }
         );
         Ok(Server { listener, router, description })
     }

@@ -29,6 +29,7 @@ pub const MAX_COORDINATE: f64 = 1e9;
     paths(
         routes::health,
         routes::ready,
+        routes::list,
         routes::metrics,
         routes::create,
         routes::describe,
@@ -70,6 +71,24 @@ pub fn document() -> Value {
             "Depth": { "operationId": "frame_depth", "parameters": frame },
             "Truth": { "operationId": "frame_truth", "parameters": frame },
         });
+    }
+    // Tokens (docs/api.md): a server started with them needs a bearer token on
+    // every /v1 route and may refuse a tenant over its rate; one without them
+    // takes requests without (the empty requirement).
+    doc["components"]["securitySchemes"] = json!({ "bearer": { "type": "http", "scheme": "bearer" } });
+    doc["security"] = json!([{ "bearer": [] }, {}]);
+    let error = json!({ "application/json": { "schema": { "$ref": "#/components/schemas/ErrorBody" } } });
+    for (path, item) in doc["paths"].as_object_mut().expect("the document has paths") {
+        if !path.starts_with("/v1/") {
+            continue;
+        }
+        for operation in item.as_object_mut().expect("a path item is an object").values_mut() {
+            let responses = &mut operation["responses"];
+            responses["401"] = json!({ "description": "tokens are configured and this request has none, or an unknown one (field `authorization`; `WWW-Authenticate: Bearer`)", "content": error });
+            if responses.get("429").is_none() {
+                responses["429"] = json!({ "description": "the tenant is over its request rate (or its session limit); retry after `Retry-After` seconds", "content": error });
+            }
+        }
     }
     let schemas = &mut doc["components"]["schemas"];
     // What the derive cannot state: a session starts from a synthetic world or from frames with intrinsics, not both.

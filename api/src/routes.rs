@@ -2,7 +2,7 @@
 //! typed input first so every bad field gets a 4xx naming it.
 
 use std::sync::Arc;
-use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::atomic::Ordering;
 use std::time::Instant;
 
 use axum::body::Bytes;
@@ -24,6 +24,7 @@ use serde_json::Value;
 use utoipa::ToSchema;
 use motion::Action;
 
+use crate::auth::Caller;
 use crate::error::ApiError;
 use crate::openapi::{self, MAX_COORDINATE, MAX_ID, MAX_TURN_DEG};
 use crate::session::{Session, policy_of};
@@ -46,7 +47,7 @@ pub fn router(state: Arc<AppState>) -> Router {
         .route("/v1/health", get(health))
         .route("/v1/ready", get(ready))
         .route("/metrics", get(metrics))
-        .route("/v1/sessions", post(create))
+        .route("/v1/sessions", post(create).get(list))
         .route("/v1/sessions/{id}", get(describe).delete(delete))
         .route("/v1/sessions/{id}/step", post(step))
         .route("/v1/sessions/{id}/observe", post(observe))
@@ -115,11 +116,14 @@ fn check_id(field: &str, id: u64) -> Res<u64> {
     Ok(id)
 }
 
-fn slot(st: &AppState, id: u64) -> Res<Arc<Slot>> {
-    if let Some(slot) = st.sessions.read().unwrap().get(&id).cloned() {
-        return Ok(slot);
-    }
+/// The session `id` if `caller` may see it; another tenant's session is as
+/// missing as one that never existed.
+fn slot(st: &AppState, id: u64, caller: &Caller) -> Res<Arc<Slot>> {
     let missing = || ApiError::not_found("session", format!("no session {id}"));
+    let owned = |slot: Arc<Slot>| if caller.owns(slot.owner.as_deref()) { Ok(slot) } else { Err(missing()) };
+    if let Some(slot) = st.sessions.read().unwrap().get(&id).cloned() {
+        return owned(slot);
+    }
     if !st.engine.store.shared() {
         return Err(missing());
     }
@@ -127,8 +131,8 @@ fn slot(st: &AppState, id: u64) -> Res<Arc<Slot>> {
     let record = tokio::task::block_in_place(|| st.engine.store.session(id))?.ok_or_else(missing)?;
     let world = record.world_seed.map(|seed| st.engine.world(seed));
     let session = Session::restore(id, record, Vec::new(), world)?;
-    let slot = Arc::new(Slot { session: Arc::new(tokio::sync::Mutex::new(session)), waiting: AtomicUsize::new(0) });
-    Ok(st.sessions.write().unwrap().entry(id).or_insert(slot).clone())
+    let slot = Arc::new(Slot::new(session));
+    owned(st.sessions.write().unwrap().entry(id).or_insert(slot).clone())
 }
 
 /// On a store other servers write too: indexes the frames stored since this
@@ -322,13 +326,22 @@ pub struct FrameInput {
         (status = 413, description = "the body is larger than the server's limit", body = ErrorBody),
         (status = 415, description = "the body is not application/json", body = ErrorBody),
         (status = 503, description = "too many model calls in flight, or a dependency (field `store` or `triton`) unreachable; retry", body = ErrorBody)))]
-pub async fn create(State(st): St, headers: HeaderMap, body: Result<Bytes, BytesRejection>) -> Res<(StatusCode, Json<Created>)> {
+pub async fn create(State(st): St, caller: Caller, headers: HeaderMap, body: Result<Bytes, BytesRejection>) -> Res<(StatusCode, Json<Created>)> {
     let req: CreateRequest = parse(&headers, body)?;
     if let Some(s) = &req.synthetic {
         check_id("synthetic.seed", s.seed)?;
     }
     let policy_spec = req.policy.unwrap_or_else(|| st.config.policy.clone());
     policy_of(&policy_spec)?;
+    if let Some(tenant) = &caller.0 {
+        let limit = st.tokens.limits(tenant).sessions;
+        let owned = st.sessions.read().unwrap().values().filter(|s| s.owner.as_deref() == Some(tenant)).count();
+        if owned >= limit {
+            return Err(ApiError::new(StatusCode::TOO_MANY_REQUESTS, "session",
+                format!("tenant {tenant} has {owned} live sessions, its limit; delete one first")));
+        }
+    }
+    let tenant = caller.0.clone();
     let _permit = permit(&st)?;
     let st2 = st.clone();
     let (id, frames) = blocking(move || {
@@ -340,7 +353,7 @@ pub async fn create(State(st): St, headers: HeaderMap, body: Result<Bytes, Bytes
                 if req.intrinsics.is_some() {
                     return Err(ApiError::bad("intrinsics", "a synthetic session uses the model's camera"));
                 }
-                e.create_synthetic(policy_spec, s.seed, s.biome)?
+                e.create_synthetic(policy_spec, s.seed, s.biome, tenant)?
             }
             (None, Some(frames)) => {
                 let k = req.intrinsics.ok_or_else(|| ApiError::bad("intrinsics", "required with frames"))?.resolve().map_err(|e| e.within("intrinsics"))?;
@@ -352,12 +365,11 @@ pub async fn create(State(st): St, headers: HeaderMap, body: Result<Bytes, Bytes
                     let latent = e.latent_of(&rgb, w, h, &k, &format!("{at}.image_png"))?;
                     records.push(FrameRecord { meta: meta(&pose, i as u64, "observed", None, None), latent, png: encode_png(w, h, &rgb), depth_png16: Vec::new() });
                 }
-                e.create(SessionRecord { policy: policy_spec, intrinsics: k, world_seed: None }, records, None)?
+                e.create(SessionRecord { policy: policy_spec, intrinsics: k, world_seed: None, tenant }, records, None)?
             }
         };
         let (id, n) = (session.id, session.frames.len());
-        let slot = Slot { session: Arc::new(tokio::sync::Mutex::new(session)), waiting: AtomicUsize::new(0) };
-        st2.sessions.write().unwrap().insert(id, Arc::new(slot));
+        st2.sessions.write().unwrap().insert(id, Arc::new(Slot::new(session)));
         Ok((id, n))
     })
     .await?;
@@ -365,13 +377,33 @@ pub async fn create(State(st): St, headers: HeaderMap, body: Result<Bytes, Bytes
     Ok((StatusCode::CREATED, Json(Created { session: id, frames })))
 }
 
+#[utoipa::path(get, path = "/v1/sessions", summary = "The caller's sessions (with tokens: its tenant's), by id",
+    responses((status = 200, body = SessionList)))]
+pub async fn list(State(st): St, caller: Caller) -> Res<Json<SessionList>> {
+    let mut sessions: Vec<u64> = if st.engine.store.shared() {
+        // Replicas share the database: the store knows sessions this one has not seen.
+        let st2 = st.clone();
+        let all = blocking(move || Ok(st2.engine.store.sessions()?)).await?;
+        all.into_iter().filter(|(_, r)| caller.owns(r.tenant.as_deref())).map(|(id, _)| id).collect()
+    } else {
+        st.sessions.read().unwrap().iter().filter(|(_, s)| caller.owns(s.owner.as_deref())).map(|(id, _)| *id).collect()
+    };
+    sessions.sort_unstable();
+    Ok(Json(SessionList { sessions }))
+}
+
+#[derive(Serialize, ToSchema)]
+pub struct SessionList {
+    pub sessions: Vec<u64>,
+}
+
 #[utoipa::path(get, path = "/v1/sessions/{id}", summary = "A session: frames, resolved policy, world seed, intrinsics",
     params(("id" = u64, Path, description = "session id", minimum = 0, maximum = 9223372036854775807_u64)),
     responses((status = 200, body = SessionInfo), (status = 400, description = "the id is not a whole number in range", body = ErrorBody),
         (status = 404, description = "no such session", body = ErrorBody), (status = 429, description = "too many requests queued on the session", body = ErrorBody)))]
-pub async fn describe(State(st): St, id: Result<Path<u64>, PathRejection>) -> Res<Json<SessionInfo>> {
+pub async fn describe(State(st): St, caller: Caller, id: Result<Path<u64>, PathRejection>) -> Res<Json<SessionInfo>> {
     let id = session_id(id)?;
-    let slot = slot(&st, id)?;
+    let slot = slot(&st, id, &caller)?;
     let s = lock(&st, &slot).await?;
     Ok(Json(SessionInfo {
         session: id,
@@ -387,9 +419,9 @@ pub async fn describe(State(st): St, id: Result<Path<u64>, PathRejection>) -> Re
     params(("id" = u64, Path, description = "session id", minimum = 0, maximum = 9223372036854775807_u64)),
     responses((status = 204, description = "deleted"), (status = 400, description = "the id is not a whole number in range", body = ErrorBody),
         (status = 404, description = "no such session", body = ErrorBody), (status = 429, description = "too many requests queued on the session", body = ErrorBody)))]
-pub async fn delete(State(st): St, id: Result<Path<u64>, PathRejection>) -> Res<StatusCode> {
+pub async fn delete(State(st): St, caller: Caller, id: Result<Path<u64>, PathRejection>) -> Res<StatusCode> {
     let id = session_id(id)?;
-    let slot = slot(&st, id)?;
+    let slot = slot(&st, id, &caller)?;
     let mut guard = lock(&st, &slot).await?;
     let st2 = st.clone();
     blocking(move || Ok(st2.engine.store.delete_session(id)?)).await?;
@@ -441,7 +473,7 @@ pub struct StepRequest {
         (status = 415, description = "the body is not application/json", body = ErrorBody),
         (status = 429, description = "too many requests queued on the session", body = ErrorBody),
         (status = 503, description = "too many model calls in flight, or a dependency (field `store` or `triton`) unreachable; retry", body = ErrorBody)))]
-pub async fn step(State(st): St, id: Result<Path<u64>, PathRejection>, headers: HeaderMap, body: Result<Bytes, BytesRejection>) -> Res<Json<StepAnswer>> {
+pub async fn step(State(st): St, caller: Caller, id: Result<Path<u64>, PathRejection>, headers: HeaderMap, body: Result<Bytes, BytesRejection>) -> Res<Json<StepAnswer>> {
     let started = Instant::now();
     let id = session_id(id)?;
     let req: StepRequest = parse(&headers, body)?;
@@ -457,7 +489,7 @@ pub async fn step(State(st): St, id: Result<Path<u64>, PathRejection>, headers: 
     }
     let steps = req.steps.unwrap_or(st.config.steps);
     let sampler = Sampler::new(&m.manifest().diffusion, steps, st.config.method, 0.0)?;
-    let slot = slot(&st, id)?;
+    let slot = slot(&st, id, &caller)?;
     let mut s = lock(&st, &slot).await?;
     if let Some(expected) = req.expected_index {
         let next = s.frames.len() as u64;
@@ -543,7 +575,7 @@ fn depth_png(b64: &str, w: u32, h: u32) -> Res<Vec<u8>> {
         (status = 415, description = "the body is not application/json", body = ErrorBody),
         (status = 429, description = "too many requests queued on the session", body = ErrorBody),
         (status = 503, description = "too many model calls in flight, or a dependency (field `store` or `triton`) unreachable; retry", body = ErrorBody)))]
-pub async fn observe(State(st): St, id: Result<Path<u64>, PathRejection>, headers: HeaderMap, body: Result<Bytes, BytesRejection>) -> Res<Json<Observed>> {
+pub async fn observe(State(st): St, caller: Caller, id: Result<Path<u64>, PathRejection>, headers: HeaderMap, body: Result<Bytes, BytesRejection>) -> Res<Json<Observed>> {
     let id = session_id(id)?;
     let req: ObserveRequest = parse(&headers, body)?;
     if let Some(a) = &req.action {
@@ -552,7 +584,7 @@ pub async fn observe(State(st): St, id: Result<Path<u64>, PathRejection>, header
     let pose = pose_from(&req.pose, "pose")?;
     let (rgb, w, h) = decode_png("image_png", &req.image_png)?;
     let depth = req.depth_png16.as_deref().map(|d| depth_png(d, w, h)).transpose()?.unwrap_or_default();
-    let slot = slot(&st, id)?;
+    let slot = slot(&st, id, &caller)?;
     let mut s = lock(&st, &slot).await?;
     let _permit = permit(&st)?;
     let st2 = st.clone();
@@ -624,12 +656,12 @@ impl CoVisibilityInput {
         (status = 413, description = "the body is larger than the server's limit", body = ErrorBody),
         (status = 415, description = "the body is not application/json", body = ErrorBody),
         (status = 429, description = "too many requests queued on the session", body = ErrorBody)))]
-pub async fn select(State(st): St, id: Result<Path<u64>, PathRejection>, headers: HeaderMap, body: Result<Bytes, BytesRejection>) -> Res<Json<Selected>> {
+pub async fn select(State(st): St, caller: Caller, id: Result<Path<u64>, PathRejection>, headers: HeaderMap, body: Result<Bytes, BytesRejection>) -> Res<Json<Selected>> {
     let id = session_id(id)?;
     let req: SelectRequest = parse(&headers, body)?;
     let pose = pose_from(&req.pose, "pose")?;
     let covisibility = req.covisibility.as_ref().map(CoVisibilityInput::settings).transpose()?;
-    let slot = slot(&st, id)?;
+    let slot = slot(&st, id, &caller)?;
     let s = lock(&st, &slot).await?;
     // Selection over a long history is CPU work: off the async workers.
     let out = blocking(move || {
@@ -666,9 +698,9 @@ fn frame_ids(p: Result<Path<(u64, u64)>, PathRejection>) -> Res<(u64, u64)> {
 }
 
 /// A stored frame of a live session, read off the async workers; 404 naming what is missing.
-async fn stored_frame(st: &Arc<AppState>, p: Result<Path<(u64, u64)>, PathRejection>) -> Res<(u64, u64, FrameRecord)> {
+async fn stored_frame(st: &Arc<AppState>, p: Result<Path<(u64, u64)>, PathRejection>, caller: &Caller) -> Res<(u64, u64, FrameRecord)> {
     let (id, index) = frame_ids(p)?;
-    slot(st, id)?;
+    slot(st, id, caller)?;
     let st2 = st.clone();
     let f = blocking(move || st2.engine.store.frame(id, index).map_err(ApiError::from)).await?;
     let f = f.ok_or_else(|| ApiError::not_found("index", format!("session {id} has no frame {index}")))?;
@@ -680,8 +712,8 @@ async fn stored_frame(st: &Arc<AppState>, p: Result<Path<(u64, u64)>, PathReject
            ("index" = u64, Path, description = "frame index in the session", minimum = 0, maximum = 9223372036854775807_u64)),
     responses((status = 200, body = FrameInfo), (status = 400, description = "the id or index is not a whole number in range", body = ErrorBody),
         (status = 404, description = "no such session, frame (or depth, or true frame)", body = ErrorBody)))]
-pub async fn frame(State(st): St, p: Result<Path<(u64, u64)>, PathRejection>) -> Res<Json<FrameInfo>> {
-    let (id, index, f) = stored_frame(&st, p).await?;
+pub async fn frame(State(st): St, caller: Caller, p: Result<Path<(u64, u64)>, PathRejection>) -> Res<Json<FrameInfo>> {
+    let (id, index, f) = stored_frame(&st, p, &caller).await?;
     let pose = crate::session::pose_of(&f.meta)?;
     Ok(Json(FrameInfo {
         session: id,
@@ -701,8 +733,8 @@ pub async fn frame(State(st): St, p: Result<Path<(u64, u64)>, PathRejection>) ->
            ("index" = u64, Path, description = "frame index in the session", minimum = 0, maximum = 9223372036854775807_u64)),
     responses((status = 200, description = "the frame", content_type = "image/png", body = Vec<u8>), (status = 400, description = "the id or index is not a whole number in range", body = ErrorBody),
         (status = 404, description = "no such session, frame (or depth, or true frame)", body = ErrorBody)))]
-pub async fn frame_image(State(st): St, p: Result<Path<(u64, u64)>, PathRejection>) -> Res<Response> {
-    let (_, _, f) = stored_frame(&st, p).await?;
+pub async fn frame_image(State(st): St, caller: Caller, p: Result<Path<(u64, u64)>, PathRejection>) -> Res<Response> {
+    let (_, _, f) = stored_frame(&st, p, &caller).await?;
     Ok(([(header::CONTENT_TYPE, "image/png")], f.png).into_response())
 }
 
@@ -711,8 +743,8 @@ pub async fn frame_image(State(st): St, p: Result<Path<(u64, u64)>, PathRejectio
            ("index" = u64, Path, description = "frame index in the session", minimum = 0, maximum = 9223372036854775807_u64)),
     responses((status = 200, description = "the depth", content_type = "image/png", body = Vec<u8>), (status = 400, description = "the id or index is not a whole number in range", body = ErrorBody),
         (status = 404, description = "no such session, frame (or depth, or true frame)", body = ErrorBody)))]
-pub async fn frame_depth(State(st): St, p: Result<Path<(u64, u64)>, PathRejection>) -> Res<Response> {
-    let (id, index, f) = stored_frame(&st, p).await?;
+pub async fn frame_depth(State(st): St, caller: Caller, p: Result<Path<(u64, u64)>, PathRejection>) -> Res<Response> {
+    let (id, index, f) = stored_frame(&st, p, &caller).await?;
     if f.depth_png16.is_empty() {
         return Err(ApiError::not_found("depth", format!("frame {index} of session {id} was stored without depth")));
     }
@@ -726,10 +758,10 @@ pub async fn frame_depth(State(st): St, p: Result<Path<(u64, u64)>, PathRejectio
            ("index" = u64, Path, description = "frame index in the session", minimum = 0, maximum = 9223372036854775807_u64)),
     responses((status = 200, description = "the world's frame", content_type = "image/png", body = Vec<u8>), (status = 400, description = "the id or index is not a whole number in range", body = ErrorBody),
         (status = 404, description = "no such session, frame (or depth, or true frame)", body = ErrorBody)))]
-pub async fn frame_truth(State(st): St, p: Result<Path<(u64, u64)>, PathRejection>) -> Res<Response> {
-    let (id, _, f) = stored_frame(&st, p).await?;
+pub async fn frame_truth(State(st): St, caller: Caller, p: Result<Path<(u64, u64)>, PathRejection>) -> Res<Response> {
+    let (id, _, f) = stored_frame(&st, p, &caller).await?;
     let pose = crate::session::pose_of(&f.meta)?;
-    let slot = slot(&st, id)?;
+    let slot = slot(&st, id, &caller)?;
     let s = lock(&st, &slot).await?;
     let st2 = st.clone();
     let png = blocking(move || {

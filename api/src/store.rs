@@ -54,6 +54,9 @@ pub struct SessionRecord {
     pub intrinsics: memory::Intrinsics,
     /// `Some(seed)` for a session in the synthetic world.
     pub world_seed: Option<u64>,
+    /// The tenant that created it, when the server runs with tokens.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tenant: Option<String>,
 }
 
 /// One stored frame. `latent` is the model's scaled latent (absent when the

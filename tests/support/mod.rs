@@ -31,13 +31,21 @@ impl Server {
 
     /// As [`Server::start`], its standard error (the log) sent to `stderr`.
     pub fn start_with_stderr(store: &Path, extra: &[&str], stderr: Stdio) -> Server {
+        Self::start_with(store, extra, stderr, &[])
+    }
+
+    /// As [`Server::start`], with `env` set in its environment.
+    pub fn start_with(store: &Path, extra: &[&str], stderr: Stdio, env: &[(&str, &str)]) -> Server {
         let fixture = concat!(env!("CARGO_MANIFEST_DIR"), "/fixtures/small");
-        let mut args = vec!["serve", "--addr", "127.0.0.1:0", "--store", store.to_str().unwrap(), "--steps", "2"];
+        let mut args = vec!["serve", "--store", store.to_str().unwrap(), "--steps", "2"];
+        if !extra.contains(&"--addr") {
+            args.extend(["--addr", "127.0.0.1:0"]);
+        }
         if !extra.contains(&"--memory-only") && !extra.contains(&"--model") {
             args.extend(["--model", fixture]);
         }
         args.extend(extra);
-        let mut child = Command::new(env!("CARGO_BIN_EXE_worldpack")).args(&args).stdout(Stdio::piped()).stderr(stderr).spawn().unwrap();
+        let mut child = Command::new(env!("CARGO_BIN_EXE_worldpack")).args(&args).envs(env.iter().copied()).stdout(Stdio::piped()).stderr(stderr).spawn().unwrap();
         let mut line = String::new();
         let mut stdout = BufReader::new(child.stdout.take().unwrap());
         stdout.read_line(&mut line).unwrap();

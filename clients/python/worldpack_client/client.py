@@ -13,6 +13,7 @@ from __future__ import annotations
 import base64
 import io
 import json
+import os
 import time
 import urllib.error
 import urllib.request
@@ -125,9 +126,12 @@ class Step:
 
 @dataclass
 class Client:
-    """`Client("http://127.0.0.1:8080")`; every method raises `WorldPackError` for a 4xx/5xx answer."""
+    """`Client("http://127.0.0.1:8080")`; every method raises `WorldPackError` for a 4xx/5xx answer.
+    A server with tokens needs `token=` (or WORLDPACK_TOKEN in the environment): it is sent as
+    `Authorization: Bearer <token>` and never printed."""
 
     base_url: str = "http://127.0.0.1:8080"
+    token: str | None = field(default_factory=lambda: os.environ.get("WORLDPACK_TOKEN"), repr=False)
     timeout: float = 120.0
     retries: int = 8
     backoff: float = 0.25
@@ -137,6 +141,8 @@ class Client:
     def request(self, method: str, path: str, body: Any = None, raw: bool = False) -> Any:
         data = None if body is None else json.dumps(body).encode()
         headers = {"content-type": "application/json"} if body is not None else {}
+        if self.token:
+            headers["authorization"] = f"Bearer {self.token}"
         for attempt in range(self.retries + 1):
             req = urllib.request.Request(self.base_url.rstrip("/") + path, data=data, headers=headers, method=method)
             try:
