@@ -49,7 +49,9 @@ enum Command {
         /// docs/deployment.md). The manifest is still read from --model.
         #[arg(long, conflicts_with = "memory_only")]
         model_backend: Option<String>,
-        /// The store file (created when missing; sessions in it are restored).
+        /// The store: a redb file (created when missing), or a PostgreSQL database as
+        /// postgres://USER[:PASSWORD]@HOST:PORT/DB (its schema is made and migrated on start).
+        /// Either way the sessions in it are restored.
         #[arg(long, default_value = "data/worldpack.redb")]
         store: PathBuf,
         #[arg(long, default_value = "127.0.0.1:8080")]

@@ -184,3 +184,40 @@ def test_the_checker_names_the_file_and_field_of_a_broken_folder(doom_suite, tmp
     assert out.returncode != 0
     for name in names:
         assert name in out.stderr, out.stderr
+
+
+def test_the_doom_walk_example_runs_against_a_real_server(tmp_path):
+    """clients/python/examples/doom_walk.py, shortened to three generated frames,
+    against `worldpack serve` with the committed Doom model as scripts/serve.sh serves it."""
+    import socket
+    import time
+    import urllib.request
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    server = subprocess.Popen([BIN, "serve", "--model", str(ROOT / "fixtures" / "doom" / "geometry_fused"), "--policy", "worldpack",
+                               "--method", "ddim", "--steps", "4", "--covisible", "--store", str(tmp_path / "store.redb"),
+                               "--addr", f"127.0.0.1:{port}"], cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    url = f"http://127.0.0.1:{port}"
+    try:
+        for _ in range(300):
+            try:
+                urllib.request.urlopen(url + "/v1/health", timeout=1)
+                break
+            except OSError:
+                assert server.poll() is None, server.stderr.read()
+                time.sleep(0.1)
+        picture = tmp_path / "walk.png"
+        out = subprocess.run([sys.executable, str(ROOT / "clients" / "python" / "examples" / "doom_walk.py"), "--url", url,
+                              "--max-return", "3", "--every", "1", "--range", "4", "--out", str(picture)],
+                             capture_output=True, text=True, timeout=600)
+        assert out.returncode == 0, out.stdout + out.stderr
+        frames = [line for line in out.stdout.splitlines() if line.startswith("frame ")]
+        assert len(frames) == 3, out.stdout
+        psnrs = [float(line.split("PSNR")[1].split("dB")[0]) for line in frames]
+        assert all(5.0 < p < 60.0 for p in psnrs), psnrs
+        assert "way back: 3 frames" in out.stdout and picture.stat().st_size > 1000
+    finally:
+        server.terminate()
+        server.wait(timeout=30)

@@ -186,3 +186,17 @@ def test_a_client_with_a_token_is_let_in_and_one_without_is_told_why(tmp_path, m
     finally:
         proc.terminate()
         proc.wait(timeout=30)
+
+
+def test_gymnasium_makes_the_environment_by_name(server):
+    import gymnasium
+
+    env = gymnasium.make("worldpack_client.env:WorldPack-v0", url=server, max_steps=2)
+    obs, _ = env.reset(seed=3)
+    assert obs["frame"].shape == (64, 64, 3)
+    _, _, _, truncated, info = env.step(env.action_space.sample())
+    assert info["index"] == 1 and not truncated
+    env.close()
+    same = gymnasium.make("WorldPack-v0", url=server, max_steps=1)  # registered by the import above
+    assert same.unwrapped.max_steps == 1
+    same.close()

@@ -33,10 +33,12 @@ def browser():
 
 
 def offline_page(browser, url):
-    """A page that may only reach the server: any other request fails the test."""
+    """A page that may only reach the server: any other request fails the test.
+    (Images the page fetched itself show through object URLs of its own origin.)"""
     page = browser.new_page(viewport={"width": 1280, "height": 900})
     foreign = []
-    page.on("request", lambda r: None if r.url.startswith(url) or r.url.startswith("data:") else foreign.append(r.url))
+    local = (url, "data:", f"blob:{url}")
+    page.on("request", lambda r: None if r.url.startswith(local) else foreign.append(r.url))
     return page, foreign
 
 
@@ -129,6 +131,28 @@ def test_memory_only_mode_selects_where_the_map_is_clicked(browser, tmp_path):
         assert len(thumbs) == 6, "WorldPack packs all six frames"
         assert int(page.get_attribute("#map", "data-frusta")) == 6
         assert "select" in page.inner_text("#timings")
+        assert foreign == [], f"the page fetched from elsewhere: {foreign}"
+    finally:
+        proc.terminate()
+        proc.wait(timeout=30)
+
+
+def test_the_page_sends_its_token_to_a_server_with_tokens(browser, tmp_path):
+    proc, url = start(tmp_path, "--steps", "2", env={"WORLDPACK_TOKENS": "viewer:page-token"})
+    try:
+        page, foreign = offline_page(browser, url)
+        page.goto(url + "/viewer")
+        page.fill("#seed", "3")
+        page.click("#create")
+        page.wait_for_function("document.querySelector('#error').textContent.includes('authorization')")
+        page.fill("#token", "page-token")
+        page.click("#create")
+        page.wait_for_function("document.querySelector('#session-label').textContent.includes('1 frames')")
+        page.keyboard.press("w")
+        page.wait_for_function("document.querySelector('#frame').dataset.index === '1'")
+        # The thumbnails of what the memory chose came through with the token.
+        page.wait_for_function("[...document.querySelectorAll('#plan img')].length > 0 && "
+                               "[...document.querySelectorAll('#plan img')].every(i => i.complete && i.naturalWidth === 64)")
         assert foreign == [], f"the page fetched from elsewhere: {foreign}"
     finally:
         proc.terminate()

@@ -98,3 +98,17 @@ class WorldPackEnv(gym.Env):
                 if e.status != 404:  # already gone is fine
                     raise
             self.session = None
+
+
+def make(url: str = "http://127.0.0.1:8080", token: str | None = None, **kwargs) -> WorldPackEnv:
+    """The environment on the server at `url` (with `token` when it has tokens); the
+    rest as WorldPackEnv takes it. What `gymnasium.make("WorldPack-v0", url=...)` calls."""
+    client = Client(url) if token is None else Client(url, token=token)
+    return WorldPackEnv(client, **kwargs)
+
+
+# Importing this module registers the environment, so either of these works:
+#   import worldpack_client.env; gymnasium.make("WorldPack-v0", url="http://127.0.0.1:8080")
+#   gymnasium.make("worldpack_client.env:WorldPack-v0", url="http://127.0.0.1:8080")
+if "WorldPack-v0" not in gym.registry:
+    gym.register(id="WorldPack-v0", entry_point="worldpack_client.env:make", disable_env_checker=True)
