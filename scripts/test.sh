@@ -35,5 +35,7 @@ echo "==> cargo test (release: the overlap property tests sample millions of poi
 cargo test --release --workspace
 
 echo "==> pytest (OpenCV convention tests, ONNX parity, the Python client, the viewer in Chromium)"
-cargo build --release --bin worldpack
+# `cargo test` built target/release/worldpack for the integration tests, with the
+# workspace's features; `cargo build --bin` would build the tree again with others.
+[ -x target/release/worldpack ] || cargo test --release --workspace --no-run
 WORLDPACK_BIN="$PWD/target/release/worldpack" .venv/bin/python -m pytest tests -q
