@@ -76,9 +76,9 @@ PY
     mkdir -p "$run/models"
     ln -sfn "$PWD/$run/base/model/baseline" "$run/models/baseline"
     "$bin" eval --suite data/doom-test --models "$run/models" --policies baseline --threads "${EVAL_THREADS:-2}" \
-        --extra worldpack="$run/worldpack/model/worldpack" --plan-warps worldpack \
+        --extra worldpack="$run/worldpack/model/worldpack" \
         --extra geometry_fused="$run/geometry_fused" --covisible geometry_fused \
-        --against baseline --strip geometry_fused_covisible,worldpack_plan_warps,baseline,reproject_fused \
+        --against baseline --strip geometry_fused_covisible,worldpack,baseline,reproject_fused \
         --out "$run/eval-test" "${@:2}" ;;
   *) echo "usage: $0 data | autoencoder | baseline | worldpack | fusion | eval" >&2; exit 2 ;;
 esac
