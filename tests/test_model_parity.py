@@ -22,8 +22,8 @@ from worldpack_model.diffusion import Sampler, Schedule, sample  # noqa: E402
 
 MODEL = ROOT / "fixtures" / "small"
 MANIFEST = json.loads((MODEL / "manifest.json").read_text())
-# The trained variants of docs/probe.md (float16-stored weights), checked graph by graph too.
-VARIANTS = sorted(p.parent for p in (ROOT / "fixtures" / "variants").glob("*/manifest.json"))
+# The trained voxel-world variants and the Doom models (float16-stored weights), checked graph by graph too.
+VARIANTS = sorted(p.parent for world in ("variants", "doom") for p in (ROOT / "fixtures" / world).glob("*/manifest.json"))
 TOL = MANIFEST["reference"]["tolerance"]
 
 
@@ -62,7 +62,7 @@ def variant_graphs():
     for model in VARIANTS:
         manifest = json.loads((model / "manifest.json").read_text())
         for name, file, spec in graphs(manifest):
-            yield pytest.param(model, manifest, name, file, spec, id=f"{model.name}-{name}")
+            yield pytest.param(model, manifest, name, file, spec, id=f"{model.parent.name}-{model.name}-{name}")
 
 
 @pytest.mark.parametrize("model,manifest,name,file,spec", list(variant_graphs()))
