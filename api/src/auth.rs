@@ -88,6 +88,9 @@ fn sha256(bytes: &[u8]) -> [u8; 32] {
 }
 
 fn parse_hex(field: &str, text: &str) -> Result<[u8; 32], String> {
+    if text.len() != 64 {
+        return Err(format!("{field}: a SHA-256 is 64 hex digits, got {}", text.len()));
+    }
     let bytes: Vec<u8> = (0..text.len())
         .step_by(2)
         .map(|i| text.get(i..i + 2).and_then(|h| u8::from_str_radix(h, 16).ok()))

@@ -271,7 +271,9 @@ mod tests {
     fn every_path_and_reference_resolves() {
         let doc = document();
         assert_eq!(doc["openapi"], "3.1.0");
-        assert_eq!(doc["paths"].as_object().unwrap().len(), 11);
+        assert_eq!(doc["paths"].as_object().unwrap().len(), 12);
+        assert_eq!(doc["components"]["securitySchemes"]["bearer"]["scheme"], "bearer");
+        assert!(doc["paths"]["/v1/sessions/{id}/step"]["post"]["responses"]["401"].is_object());
         let text = doc.to_string();
         for (at, _) in text.match_indices("#/components/schemas/") {
             let name: String = text[at + 21..].chars().take_while(|c| c.is_alphanumeric() || *c == '_').collect();
