@@ -78,7 +78,7 @@ PY
     "$bin" eval --suite data/doom-test --models "$run/models" --policies baseline --threads "${EVAL_THREADS:-2}" \
         --extra worldpack="$run/worldpack/model/worldpack" \
         --extra geometry_fused="$run/geometry_fused" --covisible geometry_fused \
-        --against baseline --strip geometry_fused_covisible,worldpack,baseline,reproject_fused \
+        --against "${AGAINST:-baseline}" --strip geometry_fused_covisible,worldpack,baseline,reproject_fused \
         --out "$run/eval-test" "${@:2}" ;;
   *) echo "usage: $0 data | autoencoder | baseline | worldpack | fusion | eval" >&2; exit 2 ;;
 esac
