@@ -19,17 +19,14 @@ sys.path.insert(0, str(ROOT / "doom"))
 from worldpack_doom import engine as E  # noqa: E402
 from worldpack_doom import suite as S  # noqa: E402
 from worldpack_doom.walk import Geometry, heading_vector, start_points  # noqa: E402
+from test_opencv_conventions import geometry as run_geometry, ok  # noqa: E402
+from test_python_client import start  # noqa: E402
 
 BIN = os.environ.get("WORLDPACK_BIN", str(ROOT / "target" / "release" / "worldpack"))
 
 
 def geometry(requests):
-    out = subprocess.run([BIN, "geometry"], input=json.dumps(requests), capture_output=True, text=True, check=False)
-    assert out.stdout, out.stderr
-    answers = json.loads(out.stdout)
-    for a in answers:
-        assert "error" not in a, a
-    return answers
+    return ok(run_geometry(requests))
 
 
 def c2w_input(m):
@@ -189,25 +186,9 @@ def test_the_checker_names_the_file_and_field_of_a_broken_folder(doom_suite, tmp
 def test_the_doom_walk_example_runs_against_a_real_server(tmp_path):
     """clients/python/examples/doom_walk.py, shortened to three generated frames,
     against `worldpack serve` with the committed Doom model as scripts/serve.sh serves it."""
-    import socket
-    import time
-    import urllib.request
-
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
-    server = subprocess.Popen([BIN, "serve", "--model", str(ROOT / "fixtures" / "doom" / "geometry_fused"), "--policy", "worldpack",
-                               "--method", "ddim", "--steps", "4", "--covisible", "--store", str(tmp_path / "store.redb"),
-                               "--addr", f"127.0.0.1:{port}"], cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
-    url = f"http://127.0.0.1:{port}"
+    server, url = start(tmp_path, "--model", str(ROOT / "fixtures" / "doom" / "geometry_fused"), "--policy", "worldpack",
+                        "--method", "ddim", "--steps", "4", "--covisible")
     try:
-        for _ in range(300):
-            try:
-                urllib.request.urlopen(url + "/v1/health", timeout=1)
-                break
-            except OSError:
-                assert server.poll() is None, server.stderr.read()
-                time.sleep(0.1)
         picture = tmp_path / "walk.png"
         out = subprocess.run([sys.executable, str(ROOT / "clients" / "python" / "examples" / "doom_walk.py"), "--url", url,
                               "--max-return", "3", "--every", "1", "--range", "4", "--out", str(picture)],

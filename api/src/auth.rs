@@ -155,6 +155,7 @@ impl Tokens {
     /// The tenants, for the startup line (never the tokens).
     pub fn tenants(&self) -> Vec<&str> {
         let mut t: Vec<&str> = self.entries.iter().map(|e| e.tenant.as_str()).collect();
+        t.sort_unstable();
         t.dedup();
         t
     }
