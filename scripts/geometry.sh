@@ -39,7 +39,7 @@ case "${1:-}" in
   export)
     ./scripts/model.sh export --run "$run" --policy "$policy" --layouts "$policy" --data data/val --out "$out" --half --threads "$threads" ;;
   eval)
-    # The rows session 8 measured are reused from runs/recipe/eval-test/rows when their models are unchanged.
+    # The rows measured on 2026-11-23 are reused from runs/recipe/eval-test/rows when their models are unchanged.
     "$bin" eval --suite data/loopnav-test --models fixtures/variants --policies baseline --out runs/recipe/eval-test \
         --extra baseline_ctx_noise=fixtures/variants/baseline_ctx_noise --extra worldpack_recipe=$recipe \
         --extra nearest_frame_packing_recipe=fixtures/variants/nearest_frame_packing_recipe \

@@ -6,7 +6,7 @@
 # (20% of the baseline's), and the baseline continued for the same 5,000 steps
 # with the recipe (no warp: it keeps no memory). Every stage resumes where it
 # stopped; run them in the background on one thread each. STEPS sets the
-# fine-tunes' length (session 14 ran 4,000, 16%, to fit the chain in a sitting).
+# fine-tunes' length (the run of 2026-11-25 used 4,000, 16%, to fit the chain in a sitting).
 #   ./scripts/paper_order.sh baseline            # runs/base25k, then its export
 #   ./scripts/paper_order.sh finetune worldpack  # or nearest_frame_packing, memory_retrieval, baseline_continued
 #   ./scripts/paper_order.sh eval                # the 48-trajectory test suite, warps from each plan only

@@ -16,7 +16,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 data="${DATA:-data/train120}"
-steps="${STEPS:-2337}"          # 20% of the baseline's 11,683 steps, as session 6's fine-tunes
+steps="${STEPS:-2337}"          # 20% of the baseline's 11,683 steps, as the fine-tunes of 2026-11-21
 threads="${THREADS:-1}"
 recipe="${RECIPE:---context-noise 0.7 --generated-level 0.3}"
 out="${OUT:-runs/recipe}"
@@ -53,7 +53,7 @@ train() {
   [ -e "$run/autoencoder.pt" ] || ln -s "$PWD/$base/autoencoder.pt" "$run/autoencoder.pt"
   [ -e "$run/latents" ] || ln -s "$PWD/$base/latents" "$run/latents"
   if [ ! -e "$run/config.json" ]; then
-    # Where-it-lands positions for the packed variants (session 6's recipe); the baseline keeps its config.
+    # Where-it-lands positions for the packed variants (the recipe of 2026-11-21); the baseline keeps its config.
     if [ "$name" = baseline_continued ]; then cp "$base/config.json" "$run/config.json"; else
       .venv/bin/python - "$base/config.json" "$run/config.json" <<'PY'
 import json, sys

@@ -41,7 +41,7 @@ pub const VARIANTS: &[Variant] = &[
     row("worldmem_greedy", "WorldMem greedy", "WorldMem greedy", PolicyKind::WorldMemGreedy, Query::Target, false, "memory_retrieval"),
     row("memory_retrieval_target", "Memory retrieval, target-pose query", "MR target", PolicyKind::MemoryRetrieval, Query::Target, false, "memory_retrieval_target"),
     row("worldpack_target", "WorldPack, target-pose query", "WP target", PolicyKind::WorldPack, Query::Target, false, "worldpack_target"),
-    // Session 6's fix for the target-pose query dropping the newest frame;
+    // The fix of 2026-11-21 for the target-pose query dropping the newest frame;
     // Algorithm 1 keeps that frame by itself, so this stays only for the models trained so.
     row("worldpack_keep_last", "WorldPack, target-pose query, newest kept", "keep-last", PolicyKind::WorldPack, Query::Target, true, "worldpack_keep_last"),
 ];
