@@ -82,6 +82,9 @@ pub struct Options {
     /// A geometry-model row to run again warping only observed frames its own plan selected (no retrieval beyond its context), as a row "NAME_plan_warps" (repeatable).
     #[arg(long = "plan-warps")]
     pub plan_warps: Vec<String>,
+    /// Run only these model rows (repeatable; default: every row), e.g. only NAME_covisible.
+    #[arg(long = "only")]
+    pub only: Vec<String>,
 }
 
 impl Options {
@@ -109,6 +112,7 @@ impl Options {
             composites: self.composites.clone(),
             covisible: self.covisible.clone(),
             plan_warps: self.plan_warps.clone(),
+            only: self.only.clone(),
         }
     }
 }

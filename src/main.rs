@@ -3,6 +3,7 @@
 mod bench;
 mod bench_serve;
 mod bench_store;
+mod bench_walk;
 mod bench_step;
 mod cli;
 mod demo;
@@ -312,6 +313,38 @@ enum BenchCommand {
         #[arg(long)]
         json: bool,
     },
+    /// The main job's step as a user drives it: sessions observe an exploration, turn round and
+    /// generate their way back; p50 and p99 of each stage the step answer reports, per number
+    /// of sessions walking at once. The defaults are `./scripts/serve.sh`'s.
+    Walk {
+        #[arg(long, default_value = "fixtures/variants/worldpack_geometry_fused")]
+        model: PathBuf,
+        /// Sampler steps per generated frame (a distilled model: its own count).
+        #[arg(long, default_value_t = 10, value_parser = clap::value_parser!(u64).range(1..=1000))]
+        steps: u64,
+        /// Sampler: ancestral or ddim.
+        #[arg(long, default_value = "ddim")]
+        method: model::Method,
+        /// Choose plans and warp sources by co-visibility (as `serve --covisible`).
+        #[arg(long, default_value_t = true, action = clap::ArgAction::Set)]
+        covisible: bool,
+        /// Comma-separated numbers of sessions walking at once.
+        #[arg(long, value_delimiter = ',', default_value = "1,4,16")]
+        sessions: Vec<usize>,
+        /// Generated steps timed per row, split over its sessions (at least 25 each).
+        #[arg(long, default_value_t = 200, value_parser = clap::value_parser!(u64).range(1..=100_000))]
+        walk_steps: u64,
+        /// Observed steps each session takes before it turns (not timed).
+        #[arg(long, default_value_t = 40, value_parser = clap::value_parser!(u64).range(1..=10_000))]
+        explore: u64,
+        #[arg(long, default_value = "cpu", value_parser = parse_provider)]
+        provider: model::Provider,
+        /// Intra-op threads per model call (pin the process to one core with `taskset -c 0` for a one-core figure).
+        #[arg(long, default_value_t = 1)]
+        threads: usize,
+        #[arg(long)]
+        json: bool,
+    },
     /// The durable store: redb (what the server uses) against SQLite (WAL, full sync), one commit per frame.
     Store {
         #[arg(long, default_value_t = 500, value_parser = clap::value_parser!(u64).range(1..=1_000_000))]
@@ -379,6 +412,15 @@ fn main() -> ExitCode {
             }
             let runtime = model::RuntimeOptions { provider, threads };
             report(bench_serve::run(&model, runtime, steps as usize, calls as usize, &sessions, per_session as usize, batch_window_ms, model_backend.as_deref(), json), "bench serve")
+        }
+        Command::Bench { what: BenchCommand::Walk { model, steps, method, covisible, sessions, walk_steps, explore, provider, threads, json } } => {
+            if let Some(bad) = sessions.iter().find(|&&n| n == 0 || n > 256) {
+                eprintln!("worldpack bench walk: --sessions must lie in 1..=256, got {bad}");
+                return ExitCode::from(2);
+            }
+            let runtime = model::RuntimeOptions { provider, threads };
+            let o = bench_walk::Options { steps: steps as usize, method, covisible, walk_steps: walk_steps as usize, explore: explore as usize };
+            report(bench_walk::run(&model, runtime, &o, &sessions, json), "bench walk")
         }
         Command::Bench { what: BenchCommand::Store { frames, json } } => report(bench_store::run(frames as usize, json), "bench store"),
         Command::Bench { what: BenchCommand::StepProbe { model, layout, provider, threads, calls } } => {

@@ -11,6 +11,7 @@ pub mod postgres_store;
 mod retention;
 mod routes;
 pub mod session;
+pub mod walk_bench;
 pub mod store;
 
 use std::collections::HashMap;

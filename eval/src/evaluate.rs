@@ -67,6 +67,9 @@ pub struct Settings {
     /// own plan selected, as a row "NAME_plan_warps" each (the ablation of
     /// retrieval for a policy that has none, such as nearest frame packing).
     pub plan_warps: Vec<String>,
+    /// Model rows to run, by name (empty: all); e.g. only the `_covisible`
+    /// rows, when the plain rows of the same models are not wanted.
+    pub only: Vec<String>,
     /// Model rows whose predictions fill the fused warp's holes in a
     /// composite row each (with the references; empty: the baseline).
     pub composites: Vec<String>,
@@ -259,6 +262,13 @@ pub fn evaluate(s: &Settings, progress: &dyn Fn(Progress)) -> Result<Evaluation,
     }
     if let Some(dup) = rows.iter().enumerate().find(|(i, (r, _))| rows[..*i].iter().any(|(q, _)| q.name == r.name)) {
         return Err(setting("--extra", format!("two rows are called {:?}", dup.1.0.name)));
+    }
+    if let Some(unknown) = s.only.iter().find(|n| !rows.iter().any(|(r, _)| &r.name == *n)) {
+        let names: Vec<&str> = rows.iter().map(|(r, _)| r.name.as_str()).collect();
+        return Err(setting("--only", format!("no model row called {unknown:?}; the rows are {names:?}")));
+    }
+    if !s.only.is_empty() {
+        rows.retain(|(r, _)| s.only.contains(&r.name));
     }
     if s.references {
         rows.push((Row { name: "copy".into(), predictor: Predictor::Copy }, None));

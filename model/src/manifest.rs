@@ -216,6 +216,16 @@ pub struct DiffusionSpec {
     pub beta_start: f64,
     pub beta_end: f64,
     pub prediction: String,
+    /// Set for a few-step student: it is sampled by DDIM on exactly this grid.
+    #[serde(default)]
+    pub distilled: Option<DistilledSpec>,
+}
+
+/// A distilled student's sampler (`python -m worldpack_model distill`).
+#[derive(Clone, Debug, Deserialize)]
+pub struct DistilledSpec {
+    /// Original timestep indices, descending; the last step lands on the clean frame.
+    pub timesteps: Vec<usize>,
 }
 
 impl Manifest {
@@ -329,6 +339,12 @@ impl Manifest {
         }
         if f.prediction != "epsilon" {
             return bad("diffusion.prediction", format!("only \"epsilon\" is supported, got {:?}", f.prediction));
+        }
+        if let Some(d) = &f.distilled {
+            let descending = d.timesteps.windows(2).all(|w| w[0] > w[1]);
+            if d.timesteps.is_empty() || !descending || d.timesteps[0] >= f.timesteps {
+                return bad("diffusion.distilled.timesteps", format!("need strictly descending indices below {}, got {:?}", f.timesteps, d.timesteps));
+            }
         }
         Ok(())
     }

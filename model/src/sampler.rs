@@ -52,6 +52,7 @@ impl Sampler {
         if !(0.0..=1.0).contains(&eta) {
             return Err(ModelError::input("eta", format!("must lie in [0, 1], got {eta}")));
         }
+
         let mut alphas_cumprod = Vec::with_capacity(total);
         let mut acc = 1.0f64;
         for i in 0..total {
@@ -71,9 +72,18 @@ impl Sampler {
             .collect();
         kept.dedup();
         kept.reverse();
+        if let Some(d) = &schedule.distilled {
+            // A student learned its own grid's jumps and nothing else: whatever
+            // was asked, it runs them, by deterministic DDIM.
+            return Ok(Sampler::from_kept(d.timesteps.clone(), &alphas_cumprod, Method::Ddim, 0.0));
+        }
+        Ok(Sampler::from_kept(kept, &alphas_cumprod, method, eta))
+    }
+
+    fn from_kept(kept: Vec<usize>, alphas_cumprod: &[f64], method: Method, eta: f64) -> Sampler {
         let abar: Vec<f64> = kept.iter().map(|&t| alphas_cumprod[t]).collect();
         let abar_prev = (0..kept.len()).map(|i| if i + 1 < kept.len() { abar[i + 1] } else { 1.0 }).collect();
-        Ok(Sampler { method, eta, timesteps: kept, abar, abar_prev })
+        Sampler { method, eta, timesteps: kept, abar, abar_prev }
     }
 
     pub fn len(&self) -> usize {

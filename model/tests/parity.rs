@@ -381,3 +381,30 @@ fn the_fusion_head_matches_pytorch() {
     assert!(err.contains("fusion") && err.contains("takes no warp"), "{err}");
     let _ = std::fs::remove_dir_all(&copy);
 }
+
+/// The distilled students (python -m worldpack_model distill): their graphs
+/// (v-prediction turned into epsilon inside) match PyTorch, the sampler runs
+/// each one's own grid by DDIM whatever steps and method are asked, and the
+/// free-running Rust sample follows PyTorch's trace.
+#[test]
+fn distilled_students_run_their_own_grid() {
+    for (name, grid) in [("variants/worldpack_geometry_fused_1step", vec![999]), ("variants/worldpack_geometry_fused_2step", vec![999, 499])] {
+        let dir = fixture_named(name);
+        let m = load(&dir);
+        let distilled = m.manifest().diffusion.distilled.as_ref().unwrap_or_else(|| panic!("{name} is distilled"));
+        assert_eq!(distilled.timesteps, grid, "{name}");
+        for (steps, method) in [(10, Method::Ancestral), (grid.len(), Method::Ddim), (50, Method::Ddim)] {
+            let s = Sampler::new(&m.manifest().diffusion, steps, method, 0.0).unwrap();
+            assert_eq!((s.timesteps.as_slice(), s.method), (grid.as_slice(), Method::Ddim), "{name} asked {steps} {method:?}");
+        }
+        samplers_follow_the_traces(&dir);
+    }
+    // A grid that does not descend is refused by name.
+    let copy = copy_fixture("distilled-bad-grid");
+    let mut manifest = manifest_json();
+    manifest["diffusion"]["distilled"] = serde_json::json!({ "timesteps": [499, 999] });
+    std::fs::write(copy.join("manifest.json"), manifest.to_string()).unwrap();
+    let err = load_err(&copy).to_string();
+    assert!(err.contains("diffusion.distilled.timesteps") && err.contains("descending"), "{err}");
+    let _ = std::fs::remove_dir_all(&copy);
+}

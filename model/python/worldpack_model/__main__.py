@@ -1,4 +1,4 @@
-"""`python -m worldpack_model <stage>`: train-ae, encode, train, variants, export, paper-scale, recover,
+"""`python -m worldpack_model <stage>`: train-ae, encode, train, variants, distill, export, paper-scale, recover,
 fusion-train, fusion-export.
 See docs/model.md for the whole recipe."""
 
@@ -91,6 +91,20 @@ def main() -> None:
     p.add_argument("--data", type=Path, required=True, help="a suite for the reference inputs and metrics (test split)")
     p.add_argument("--out", type=Path, required=True)
     p.add_argument("--half", action="store_true", help="round the weights to float16 and store them so (half the size)")
+    p.add_argument("--distilled", type=int, help="export the N-step student run/distilled-<policy>-N.pt instead")
+    p.add_argument("--fusion-from", type=Path, help="a model folder whose fusion head the export keeps (a student keeps its teacher's)")
+
+    p = sub.add_parser("distill", help="distil a trained CDiT's DDIM sampler into a few-step student "
+                       "(distill.py; resumes from run/distilled-<policy>-<N>.pt)")
+    common(p)
+    p.add_argument("--policy", default="worldpack", help="the teacher: run/cdit-<policy>.pt (e.g. from `recover`)")
+    p.add_argument("--grid", default="999,499", help="the student's descending timesteps, one DDIM step each")
+    p.add_argument("--teacher-steps", type=int, default=5, help="teacher DDIM steps per segment of the grid")
+    p.add_argument("--steps", type=int, default=20000)
+    p.add_argument("--batch", type=int, default=64)
+    p.add_argument("--lr", type=float, default=1e-4)
+    p.add_argument("--ema", type=float, default=0.999)
+    p.add_argument("--minutes", type=float)
 
     p = sub.add_parser("paper-scale", help="a model folder at the paper's shapes (224x224 frames, 4x28x28 latents, "
                        "844 vs 784 context tokens) with random seeded weights: --size paper (CDiT-B/2, SD-VAE-shaped "
@@ -165,7 +179,11 @@ def main() -> None:
     elif a.stage == "export":
         from . import export
 
-        export.export(a.run, a.policy, a.layouts.split(","), a.data, a.out, a.device, a.half)
+        export.export(a.run, a.policy, a.layouts.split(","), a.data, a.out, a.device, a.half, a.distilled, a.fusion_from)
+    elif a.stage == "distill":
+        from . import distill
+
+        distill.distill(a.data, a.run, a.policy, a.grid, a.teacher_steps, a.steps, a.batch, a.lr, a.ema, a.device, a.minutes)
 
 
 if __name__ == "__main__":

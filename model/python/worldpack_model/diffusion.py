@@ -51,12 +51,17 @@ class Sampler:
     """A respaced sampler: `steps` runs, step i feeds the model the original
     timestep `timesteps[i]` (descending) and moves the state one kept step down."""
 
-    def __init__(self, schedule: Schedule, steps: int, method: str = "ancestral", eta: float = 0.0):
+    def __init__(self, schedule: Schedule, steps: int, method: str = "ancestral", eta: float = 0.0,
+                 timesteps: list[int] | None = None):
         if method not in ("ancestral", "ddim"):
             raise ValueError(f"method must be ancestral or ddim, got {method!r}")
-        kept = respaced_timesteps(schedule.timesteps, steps)
         self.method, self.eta = method, eta
-        self.timesteps = kept[::-1].copy()
+        if timesteps is not None:  # a distilled model's own grid, descending
+            if len(timesteps) != steps:
+                raise ValueError(f"steps {steps} does not match the {len(timesteps)} given timesteps")
+            self.timesteps = np.asarray(timesteps, dtype=np.int64)
+        else:
+            self.timesteps = respaced_timesteps(schedule.timesteps, steps)[::-1].copy()
         self.abar = schedule.alphas_cumprod[self.timesteps]
         self.abar_prev = np.concatenate([schedule.alphas_cumprod[self.timesteps[1:]], [1.0]])
 
@@ -84,12 +89,14 @@ class Sampler:
 
 
 def sample(eps_fn: EpsFn, schedule: Schedule, x_T: np.ndarray, steps: int, method: str = "ancestral",
-           eta: float = 0.0, noise: np.ndarray | None = None, rng: np.random.Generator | None = None) -> Trace:
+           eta: float = 0.0, noise: np.ndarray | None = None, rng: np.random.Generator | None = None,
+           timesteps: list[int] | None = None) -> Trace:
     """Runs `steps` denoising steps from `x_T` (float32). `eps_fn(x, t)` gets the
     batch and a float32 vector of original timestep indices. Injected noise,
     when given, has shape (steps, *x_T.shape) in the order the steps run; the
-    last step never adds noise."""
-    sampler = Sampler(schedule, steps, method, eta)
+    last step never adds noise. `timesteps`: the descending grid a distilled
+    model was trained on, instead of the respaced one."""
+    sampler = Sampler(schedule, steps, method, eta, timesteps)
     if noise is None:
         rng = rng or np.random.default_rng(0)
         noise = rng.standard_normal((len(sampler), *x_T.shape)).astype(np.float32)

@@ -183,16 +183,29 @@ def reference_rows(source: wdata.PlannedLatents, count: int) -> list[tuple[int, 
     return rows
 
 
-def export(run: Path, policy: str, layout_names: list[str], data: Path, out: Path, device: str, half: bool = False) -> None:
-    """A trained run's checkpoint (its EMA weights) as a model folder."""
+def export(run: Path, policy: str, layout_names: list[str], data: Path, out: Path, device: str, half: bool = False,
+           distilled: int | None = None, fusion_from: Path | None = None) -> None:
+    """A trained run's checkpoint (its EMA weights) as a model folder:
+    `cdit-<policy>.pt`, or with `distilled` N the N-step student
+    `distilled-<policy>-N.pt` (distill.py). `fusion_from`: a model folder
+    whose fusion head the new folder keeps."""
     cfg = run_config(run)
-    ckpt_path = run / f"cdit-{policy}.pt"
-    if not ckpt_path.exists():
-        raise SystemExit(f"--policy: no {ckpt_path}; train it with `train --policy {policy}`")
-    ckpt = torch.load(ckpt_path, map_location="cpu")
+    if distilled is None:
+        ckpt_path, stage = run / f"cdit-{policy}.pt", f"cdit-{policy}"
+        if not ckpt_path.exists():
+            raise SystemExit(f"--policy: no {ckpt_path}; train it with `train --policy {policy}`")
+    else:
+        ckpt_path, stage = run / f"distilled-{policy}-{distilled}.pt", f"distilled-{policy}-{distilled}"
+        if not ckpt_path.exists():
+            raise SystemExit(f"--distilled: no {ckpt_path}; make it with `distill --policy {policy}` and a {distilled}-step --grid")
+    ckpt = torch.load(ckpt_path, map_location="cpu", weights_only=False)
     ae = load_autoencoder(run, torch.device("cpu"))
     model = CDiT(cfg.cdit)
     model.load_state_dict(ckpt["ema"])
+    if "distilled" in ckpt:
+        from .distill import EpsFromV
+
+        model = EpsFromV(model, Schedule(cfg.diffusion).alphas_cumprod)
     log = [json.loads(l) for l in (run / "log.jsonl").read_text().splitlines()] if (run / "log.jsonl").exists() else []
     last = lambda stage: next((r for r in reversed(log) if r["stage"] == stage), {})
     training = {
@@ -205,17 +218,38 @@ def export(run: Path, policy: str, layout_names: list[str], data: Path, out: Pat
         # Absent in checkpoints from before plans recorded it: those plans used the target pose.
         "plans_query": ckpt.get("plans_query", "target"),
         "autoencoder_steps": last("autoencoder").get("step"),
-        "final_loss": last(f"cdit-{policy}").get("loss"),
-        "samples_per_s": last(f"cdit-{policy}").get("samples_per_s"),
+        "final_loss": last(stage).get("loss"),
+        "samples_per_s": last(stage).get("samples_per_s"),
         "weights": "EMA",
     }
+    # A student's first step recovers the clean frame as (x - sqrt(1 - abar) eps) / sqrt(abar) at
+    # abar = 4e-5: float32 rounding of eps near x is amplified ~160-fold there, ~3e-5 in the state.
+    tolerance = {"abs": 2e-4, "rel": 1e-4} if "distilled" in ckpt else None
     write_model(cfg, ae, model, layout_names, data, out, half, training=training,
-                generated_level=ckpt.get("recipe", {}).get("generated_level", 0.0))
+                generated_level=ckpt.get("recipe", {}).get("generated_level", 0.0), distilled=ckpt.get("distilled"),
+                tolerance=tolerance)
+    if fusion_from is not None:
+        keep_fusion_head(fusion_from, out)
+
+
+def keep_fusion_head(source: Path, out: Path) -> None:
+    """Copies `source`'s fusion head (graph, references, manifest entry) into
+    the model folder `out`: a distilled student keeps its teacher's head."""
+    import shutil
+
+    theirs = json.loads((source / "manifest.json").read_text())
+    if "fusion" not in theirs:
+        raise SystemExit(f"--fusion-from: {source} has no fusion head")
+    ours = json.loads((out / "manifest.json").read_text())
+    shutil.copy(source / theirs["fusion"]["file"], out / theirs["fusion"]["file"])
+    shutil.copytree(source / "reference" / "fusion", out / "reference" / "fusion", dirs_exist_ok=True)
+    ours["fusion"] = {**theirs["fusion"], "from": source.name}
+    (out / "manifest.json").write_text(json.dumps(ours, indent=2))
 
 
 def write_model(cfg: ModelConfig, ae, model: CDiT, layout_names: list[str], data: Path, out: Path, half: bool,
                 training: dict | None, generated_level: float = 0.0, metrics: bool = True, created_by: str = "python -m worldpack_model export",
-                tolerance: dict | None = None) -> None:
+                tolerance: dict | None = None, distilled: dict | None = None) -> None:
     """Graphs, references (inputs from `data`'s first trajectories) and the
     manifest of one model. `training` None: untrained weights (no training
     record, no policy); `metrics` False skips the held-out figures."""
@@ -326,18 +360,21 @@ def write_model(cfg: ModelConfig, ae, model: CDiT, layout_names: list[str], data
         with torch.no_grad():
             return graph(*(torch.from_numpy(feed[n]) for n in names)).numpy()
 
+    # A distilled model is sampled on its own grid with DDIM only.
+    grid = distilled["timesteps"] if distilled else None
     traces = {}
-    for method in ("ancestral", "ddim"):
+    for method in ("ddim",) if grid else ("ancestral", "ddim"):
+        steps = len(grid) if grid else TRACE_STEPS
         x_T = rng.standard_normal(arrays["x_t"].shape).astype(np.float32)
-        noise = rng.standard_normal((TRACE_STEPS, *x_T.shape)).astype(np.float32)
-        tr = sample(eps_fn, sched, x_T, TRACE_STEPS, method, eta=0.0, noise=noise)
+        noise = rng.standard_normal((steps, *x_T.shape)).astype(np.float32)
+        tr = sample(eps_fn, sched, x_T, steps, method, eta=0.0, noise=noise, timesteps=grid)
         save_arrays(ref / f"trace_{method}", {"timesteps": tr.timesteps, "x": tr.x, "eps": tr.eps, "noise": tr.noise})
-        traces[method] = {"folder": f"reference/trace_{method}", "layout": trace_layout, "steps": TRACE_STEPS,
+        traces[method] = {"folder": f"reference/trace_{method}", "layout": trace_layout, "steps": steps,
                           "eta": 0.0, "conditioning": f"reference/denoiser_{trace_layout} (all inputs but x_t and timestep)"}
 
     if cfg.cdit.warp:
         save_arrays(ref / "warp", warp_cases(data, ae))
-    measured = measure(cfg, ae, model, data, latent_dir, layout_names, sched) if metrics else None
+    measured = measure(cfg, ae, model, data, latent_dir, layout_names, sched, grid) if metrics else None
     for f in latent_dir.iterdir():
         f.unlink()
     latent_dir.rmdir()
@@ -398,7 +435,9 @@ def write_model(cfg: ModelConfig, ae, model: CDiT, layout_names: list[str], data
                       "ancestral_variance": "posterior beta_tilde = beta_k (1 - abar_{k-1}) / (1 - abar_k), no noise on the last step",
                       "respacing": "kept = unique(round(linspace(0, T-1, steps))); betas recomputed from the kept abar; the model gets the original index",
                       "ddim": "x_{k-1} = sqrt(abar_{k-1}) x0 + sqrt(1 - abar_{k-1} - sigma^2) eps + sigma z, sigma = eta sqrt((1-abar_{k-1})/(1-abar_k) (1 - abar_k/abar_{k-1}))",
-                      "precision": "coefficients in float64, state in float32"},
+                      "precision": "coefficients in float64, state in float32",
+                      **({"distilled": {**distilled, "sampler": "ddim, eta 0, on exactly these timesteps (the last step lands on the clean frame)"}}
+                         if distilled else {})},
         **({"training": training} if training is not None else {}),
         **({"metrics": measured} if measured is not None else {}),
         "reference": {
@@ -418,7 +457,8 @@ def encode_chunk(cfg: ModelConfig) -> int:
 
 
 @torch.no_grad()
-def measure(cfg: ModelConfig, ae, model: CDiT, data: Path, latent_dir: Path, layout_names: list[str], sched: Schedule) -> dict:
+def measure(cfg: ModelConfig, ae, model: CDiT, data: Path, latent_dir: Path, layout_names: list[str], sched: Schedule,
+            grid: list[int] | None = None) -> dict:
     """Held-out figures for the manifest: autoencoder PSNR, denoising loss, and
     next-frame PSNR with a short sampler against copying the last frame."""
     out = {"suite": str(data), "autoencoder_psnr_db": round(evaluate_autoencoder(ae, data, torch.device("cpu")), 2)}
@@ -442,7 +482,10 @@ def measure(cfg: ModelConfig, ae, model: CDiT, data: Path, latent_dir: Path, lay
         sub = [tuple(x[:n] for x in g) for g in groups]
         w = warp[:n] if warp is not None else None
         fn = lambda x, tt: model(torch.from_numpy(x), torch.from_numpy(tt), act[:n], rel[:n], sub, rates=layout.rates, warp=w).numpy()
-        tr = sample(fn, sched, rng.standard_normal(x0[:n].shape).astype(np.float32), 20, "ancestral", rng=rng)
+        if grid:  # a distilled model: DDIM on its own grid
+            tr = sample(fn, sched, rng.standard_normal(x0[:n].shape).astype(np.float32), len(grid), "ddim", rng=rng, timesteps=grid)
+        else:
+            tr = sample(fn, sched, rng.standard_normal(x0[:n].shape).astype(np.float32), 20, "ancestral", rng=rng)
         pred = ae.decoder(torch.from_numpy(tr.x[-1]) / ae.scale)
         truth = ae.decoder(x0[:n] / ae.scale)
         # The most recent present context frame, decoded: what "copy the last frame" would predict.
@@ -455,7 +498,7 @@ def measure(cfg: ModelConfig, ae, model: CDiT, data: Path, latent_dir: Path, lay
                         best, best_t = g[0][i, s], g[1][i, s]
             last.append(best)
         copy = ae.decoder(torch.from_numpy(np.stack(last)) / ae.scale)
-        entry["next_frame_psnr_db_20_steps"] = round(psnr(pred, truth), 2)
+        entry[f"next_frame_psnr_db_{len(grid)}_steps" if grid else "next_frame_psnr_db_20_steps"] = round(psnr(pred, truth), 2)
         entry["copy_last_frame_psnr_db"] = round(psnr(copy, truth), 2)
         out[name] = entry
     return out

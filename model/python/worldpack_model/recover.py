@@ -172,6 +172,9 @@ def recover(model_dir: Path, run: Path, policy: str | None) -> None:
     manifest = json.loads((model_dir / "manifest.json").read_text())
     cfg = ModelConfig.from_json(manifest["config"])
     trained = manifest.get("training", {})
+    if "distilled" in manifest["diffusion"]:
+        raise SystemExit(f"--model: {model_dir} is a distilled student (v-prediction inside its graph); recover its teacher, "
+                         f"{manifest['diffusion']['distilled'].get('teacher')}, instead")
     policy = policy or trained.get("policy") or manifest["denoiser"]["layouts"][0]["name"]
     run.mkdir(parents=True, exist_ok=True)
     if (run / "config.json").exists() and json.loads((run / "config.json").read_text()) != cfg.to_json():
@@ -196,6 +199,6 @@ def recover(model_dir: Path, run: Path, policy: str | None) -> None:
     weights = cdit.state_dict()
     save(run / f"cdit-{policy}.pt", model=weights, ema=weights, step=steps, policy=policy,
          memory_focus=float(trained.get("memory_focus") or 0.0), init_from=trained.get("init_from"),
-         recovered_from=str(model_dir))
+         recipe=trained.get("recipe", {}), recovered_from=str(model_dir))
     print(f"recovered {model_dir} into {run}: autoencoder.pt, cdit-{policy}.pt (step {steps}); "
           f"largest difference from the references {worst:.1e}")

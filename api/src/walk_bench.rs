@@ -1,0 +1,117 @@
+//! What a step of the main job costs as a user drives it: each session
+//! observes an exploration of the synthetic world, turns round and
+//! generates its way back through `Engine::step`, the call the server's
+//! step handler makes (durable commit included). Only the generated steps
+//! are timed, stage by stage.
+
+use std::sync::Barrier;
+use std::time::Instant;
+
+use model::Sampler;
+use motion::Action;
+use serde::Serialize;
+
+use crate::ApiError;
+use crate::engine::Engine;
+
+/// The walk each session takes.
+#[derive(Clone, Copy, Debug)]
+pub struct Walk {
+    /// Observed steps before the turn (frames from the world, not timed).
+    pub explore: usize,
+    /// Generated steps after it, timed.
+    pub back: usize,
+}
+
+/// The stages a step's answer reports (`StepOutcome::timings_ms`), and the whole step.
+pub const STAGES: [&str; 6] = ["select", "warp", "sample", "decode", "store", "total"];
+
+/// One row: `sessions` walking at once.
+#[derive(Clone, Debug, Serialize)]
+pub struct WalkRow {
+    pub sessions: usize,
+    pub steps: usize,
+    pub steps_per_s: f64,
+    /// Per stage (`STAGES`'s order): p50 and p99 in ms.
+    pub p50_ms: Vec<f64>,
+    pub p99_ms: Vec<f64>,
+}
+
+/// Exploration: forward, a slow left turn every 4th step; the turn: 18
+/// steps of 10 degrees; the way back mirrors the exploration's turns.
+fn action(walk: &Walk, i: usize) -> Action {
+    let turn = 18;
+    let yaw_deg = if i < walk.explore {
+        if i % 4 == 0 { 8.0 } else { 0.0 }
+    } else if i < walk.explore + turn {
+        10.0
+    } else if i % 4 == 0 {
+        -8.0
+    } else {
+        0.0
+    };
+    Action { forward: !(walk.explore..walk.explore + turn).contains(&i), yaw_deg, ..Action::default() }
+}
+
+/// One session's walk: each generated step's stage timings and total, and
+/// when its generated steps began and ended. `ready` holds every walk at
+/// the turn until all have explored, so the timed phases overlap.
+fn one_walk(engine: &Engine, policy: &serde_json::Value, sampler: &Sampler, seed: u64, walk: &Walk, ready: &Barrier) -> Result<Timed, ApiError> {
+    let explored = (|| -> Result<crate::session::Session, ApiError> {
+        let mut s = engine.create_synthetic(policy.clone(), seed, None, None)?;
+        for i in 0..walk.explore {
+            engine.step_observed(&mut s, &action(walk, i))?;
+        }
+        Ok(s)
+    })();
+    ready.wait(); // also on an error, so the other walks are not left waiting
+    let mut s = explored?;
+    let began = Instant::now();
+    let mut times = Vec::with_capacity(walk.back + 18);
+    for i in walk.explore..walk.explore + 18 + walk.back {
+        let t = Instant::now();
+        let out = engine.step(&mut s, &action(walk, i), None, sampler, None)?;
+        let total = t.elapsed().as_secs_f64() * 1e3;
+        let [a, b, c, d, e] = out.timings_ms;
+        times.push([a, b, c, d, e, total]);
+    }
+    Ok(Timed { times, began, ended: Instant::now() })
+}
+
+struct Timed {
+    times: Vec<[f64; 6]>,
+    began: Instant,
+    ended: Instant,
+}
+
+/// `sessions` walks at once on threads sharing `engine`; `steps` generated
+/// steps in all, split evenly (at least 25 each).
+pub fn run(engine: &Engine, policy: &serde_json::Value, sampler: &Sampler, sessions: usize, steps: usize, explore: usize) -> Result<WalkRow, ApiError> {
+    let back = steps.div_ceil(sessions).max(25);
+    let walk = Walk { explore, back };
+    let ready = Barrier::new(sessions);
+    let results: Vec<Result<Timed, ApiError>> = std::thread::scope(|scope| {
+        let ready = &ready;
+        let workers: Vec<_> = (0..sessions).map(|k| scope.spawn(move || one_walk(engine, policy, sampler, 7 + k as u64, &walk, ready))).collect();
+        workers.into_iter().map(|w| w.join().expect("a walk thread panicked")).collect()
+    });
+    let timed = results.into_iter().collect::<Result<Vec<_>, _>>()?;
+    // Generated steps per second while the walks generated.
+    let began = timed.iter().map(|t| t.began).min().expect("at least one session");
+    let ended = timed.iter().map(|t| t.ended).max().expect("at least one session");
+    let all: Vec<[f64; 6]> = timed.into_iter().flat_map(|t| t.times).collect();
+    let wall = ended.duration_since(began).as_secs_f64();
+    let generated = all.len();
+    let column = |k: usize| {
+        let mut v: Vec<f64> = all.iter().map(|t| t[k]).collect();
+        v.sort_by(f64::total_cmp);
+        v
+    };
+    let (mut p50, mut p99) = (Vec::new(), Vec::new());
+    for k in 0..STAGES.len() {
+        let v = column(k);
+        p50.push(eval::stats::percentile(&v, 0.5));
+        p99.push(eval::stats::percentile(&v, 0.99));
+    }
+    Ok(WalkRow { sessions, steps: generated, steps_per_s: generated as f64 / wall, p50_ms: p50, p99_ms: p99 })
+}

@@ -1,0 +1,184 @@
+"""Few-step distillation of a trained CDiT's DDIM sampler.
+
+The method is progressive distillation's target (Salimans & Ho, 2022, eq. 8)
+over a fixed student grid in one round: the student takes one DDIM step per
+segment of its grid (e.g. 999 -> 499 -> clean), and learns to land where the
+teacher lands after `teacher_steps` DDIM steps over the same segment. Inputs
+are the forward process's noisy latents at the segment's start, as in
+progressive distillation, with the teacher's own conditioning (context noise
+levels, warps), so the student sees what the teacher saw.
+
+One round instead of halving rounds because the teacher is already a short
+sampler (the served one takes 10 DDIM steps): the targets of a 2-step
+student are 5-step teacher segments, cheap enough to compute on every batch.
+
+The student predicts v (Salimans & Ho's v-parameterisation): at t = 999 the
+signal is 0.6% of the state, and an epsilon-predicting student's clean-frame
+estimate would amplify its error 158-fold there. Its exported graph turns v
+back into epsilon (`EpsFromV`), so the Rust sampler and every backend run it
+unchanged; the manifest's `diffusion.distilled` names the grid it must be
+sampled on."""
+
+from __future__ import annotations
+
+import copy
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import nn
+from tqdm import tqdm
+
+from . import data as wdata
+from .cdit import CDiT
+from .config import LAYOUTS
+from .diffusion import Schedule
+from .recipe import ContextAugmenter, Recipe
+from .train import load_autoencoder, log, pick_device, run_config, save
+from .warp import batch_warp
+
+
+def parse_grid(text: str, timesteps: int) -> list[int]:
+    """'999,499' -> [999, 499]: strictly descending original indices, the first the last timestep."""
+    try:
+        grid = [int(x) for x in text.split(",")]
+    except ValueError:
+        raise SystemExit(f"--grid: comma-separated timestep indices, got {text!r}")
+    if grid[0] != timesteps - 1 or any(a <= b for a, b in zip(grid, grid[1:])) or grid[-1] < 0:
+        raise SystemExit(f"--grid: must start at {timesteps - 1} and descend strictly to a value >= 0, got {grid}")
+    return grid
+
+
+class EpsFromV(nn.Module):
+    """A v-predicting CDiT seen as an epsilon-predicting one:
+    eps = sqrt(1 - abar_t) x_t + sqrt(abar_t) v."""
+
+    def __init__(self, model: CDiT, alphas_cumprod: np.ndarray):
+        super().__init__()
+        self.model, self.cfg = model, model.cfg
+        self.register_buffer("alpha_bar", torch.tensor(alphas_cumprod, dtype=torch.float32), persistent=False)
+
+    def forward(self, x_t, t, action, rel_time, groups, rates=None, warp=None):
+        v = self.model(x_t, t, action, rel_time, groups, rates=rates, warp=warp)
+        ab = self.alpha_bar[t.long()].view(-1, 1, 1, 1)
+        return (1 - ab).sqrt() * x_t + ab.sqrt() * v
+
+
+def segment_times(start: torch.Tensor, end: torch.Tensor, steps: int) -> list[torch.Tensor]:
+    """Per item, the `steps` timesteps the teacher visits from `start` towards
+    `end`: evenly over [start, end) for an inner segment, over [start, 0] for
+    one that ends clean (end -1), as the runtime's DDIM ends its own samples."""
+    s, last, clean = start.float(), end.clamp_min(0).float(), end < 0
+    out = []
+    for j in range(steps):
+        frac = torch.where(clean, j / max(steps - 1, 1), j / steps)
+        out.append(torch.round(s - frac * (s - last)).long())
+    return out
+
+
+@torch.no_grad()
+def teacher_segment(eps_fn, alpha_bar: torch.Tensor, x: torch.Tensor, start: torch.Tensor, end: torch.Tensor,
+                    steps: int) -> torch.Tensor:
+    """The teacher's deterministic DDIM from `x` at `start` to `end` (-1: clean) in `steps` steps."""
+    abar = lambda t: torch.where(t >= 0, alpha_bar[t.clamp_min(0)], 1.0).view(-1, 1, 1, 1)
+    times = segment_times(start, end, steps)
+    for j, t in enumerate(times):
+        ab, ab_next = abar(t), abar(times[j + 1] if j + 1 < steps else end)
+        eps = eps_fn(x, t.float())
+        x0 = (x - (1 - ab).sqrt() * eps) / ab.sqrt()
+        x = ab_next.sqrt() * x0 + (1 - ab_next).sqrt() * eps
+    return x
+
+
+def distill(data: Path, run: Path, policy: str, grid_text: str, teacher_steps: int, steps: int, batch: int, lr: float,
+            ema_decay: float, device: str, minutes: float | None) -> None:
+    cfg = run_config(run)
+    dev = pick_device(device)
+    grid = parse_grid(grid_text, cfg.diffusion.timesteps)
+    if teacher_steps < 1:
+        raise SystemExit(f"--teacher-steps: at least 1 per segment, got {teacher_steps}")
+    teacher_path = run / f"cdit-{policy}.pt"
+    if not teacher_path.exists():
+        raise SystemExit(f"--run: no {teacher_path}; `recover` the served model into it first")
+    state = torch.load(teacher_path, map_location=dev, weights_only=False)
+    recipe = Recipe(**{k: v for k, v in state.get("recipe", {}).items() if k in Recipe().to_json()})
+    memory_focus = float(state.get("memory_focus", 0.0))
+    teacher = CDiT(cfg.cdit).to(dev)
+    teacher.load_state_dict(state["ema"])
+    teacher.eval().requires_grad_(False)
+    student = copy.deepcopy(teacher).train().requires_grad_(True)
+    ema = copy.deepcopy(teacher).requires_grad_(False)
+    opt = torch.optim.AdamW(student.parameters(), lr=lr, weight_decay=0.0)
+
+    name = f"distilled-{policy}-{len(grid)}"
+    ckpt = run / f"{name}.pt"
+    step = 0
+    if ckpt.exists():
+        saved = torch.load(ckpt, map_location=dev, weights_only=False)
+        if saved["distilled"]["timesteps"] != grid:
+            raise SystemExit(f"--grid: {ckpt} was distilled for {saved['distilled']['timesteps']}, not {grid}")
+        # A checkpoint moved between machines may carry only its EMA weights.
+        student.load_state_dict(saved.get("model", saved["ema"]))
+        ema.load_state_dict(saved["ema"])
+        if "opt" in saved:
+            opt.load_state_dict(saved["opt"])
+        step = saved["step"]
+        print(f"resuming {ckpt.name} at step {step}")
+
+    layout = LAYOUTS[policy]
+    source = wdata.PlannedLatents(data, run / "latents", policy, layout, memory_focus, warp=cfg.cdit.warp)
+    autoencoder = load_autoencoder(run, dev).requires_grad_(False) if cfg.cdit.warp else None
+    alpha_bar = torch.tensor(Schedule(cfg.diffusion).alphas_cumprod, dtype=torch.float32, device=dev)
+    augment = ContextAugmenter(recipe, source, layout.rates, alpha_bar, cfg.cdit.context_noise, 3000 + step, dev)
+    rng = np.random.default_rng(4000 + step)
+    torch.manual_seed(4000 + step)
+    starts = torch.tensor(grid, device=dev)
+    ends = torch.tensor(grid[1:] + [-1], device=dev)
+    record = {"method": "progressive distillation target (Salimans & Ho 2022), one round", "timesteps": grid,
+              "teacher": str(teacher_path), "teacher_steps": state["step"], "teacher_steps_per_segment": teacher_steps,
+              "prediction": "v (exported as epsilon)"}
+    checkpoint = lambda: save(ckpt, model=student.state_dict(), ema=ema.state_dict(), opt=opt.state_dict(), step=step,
+                              policy=policy, memory_focus=memory_focus, recipe=recipe.to_json(), distilled=record,
+                              init_from=str(teacher_path), plans_query=source.plans_query,
+                              data=state.get("data", wdata.describe(data)))
+    deadline = time.time() + minutes * 60 if minutes is not None else math.inf
+    bar = tqdm(total=steps, initial=step, desc=name, unit="step")
+    started, seen = time.time(), 0
+    while step < steps and time.time() < deadline:
+        drawn = source.batch(rng, batch)
+        x0, action, rel_time, groups = augment(drawn, teacher)
+        warp_in = batch_warp(source, drawn, autoencoder, dev) if autoencoder is not None else None
+        k = torch.randint(0, len(grid), (batch,), device=dev)
+        t, end = starts[k], ends[k]
+        ab = alpha_bar[t].view(-1, 1, 1, 1)
+        ab_end = torch.where(end >= 0, alpha_bar[end.clamp_min(0)], 1.0).view(-1, 1, 1, 1)
+        x_t = ab.sqrt() * x0 + (1 - ab).sqrt() * torch.randn_like(x0)
+        teacher_eps = lambda x, tt: teacher(x, tt, action, rel_time, groups, rates=layout.rates, warp=warp_in)
+        target_state = teacher_segment(teacher_eps, alpha_bar, x_t, t, end, teacher_steps)
+        # The clean frame that one DDIM step from x_t must predict to land on target_state (eq. 8).
+        ratio = ((1 - ab_end) / (1 - ab)).sqrt()
+        x0_target = (target_state - ratio * x_t) / (ab_end.sqrt() - ratio * ab.sqrt())
+        v = student(x_t, t.float(), action, rel_time, groups, rates=layout.rates, warp=warp_in)
+        x0_student = ab.sqrt() * x_t - (1 - ab).sqrt() * v
+        loss = F.mse_loss(x0_student, x0_target)
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(student.parameters(), 10.0)
+        opt.step()
+        with torch.no_grad():
+            for pe, pm in zip(ema.parameters(), student.parameters()):
+                pe.lerp_(pm, 1 - ema_decay)
+        step += 1
+        seen += batch
+        bar.update(1)
+        if step % 50 == 0:
+            bar.set_postfix(loss=f"{loss.item():.4f}")
+            log(run, {"stage": name, "step": step, "loss": loss.item(), "samples_per_s": seen / (time.time() - started)})
+        if step % 500 == 0:
+            checkpoint()
+    bar.close()
+    checkpoint()
+    print(f"{name} at step {step} ({seen / max(time.time() - started, 1e-9):.1f} samples/s this run)")

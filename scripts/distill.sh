@@ -1,0 +1,34 @@
+#!/usr/bin/env bash
+# The served model's few-step student (docs/speed.md): the fused geometry
+# model's 10-step DDIM distilled into GRID's steps (distill.py), keeping the
+# teacher's fusion head. Resumable: each stage continues or reuses what is done.
+#   ./scripts/distill.sh data      # data/train120 with plans and memory need (as recipe.sh prepare makes it)
+#   ./scripts/distill.sh train     # GRID (999,499), TEACHER_STEPS (5 per segment), STEPS, MINUTES, BATCH, DEVICE
+#   ./scripts/distill.sh export    # -> fixtures/variants/worldpack_geometry_fused_<N>step
+# RUN (runs/distill/<N>step) holds the run; PY runs `python -m worldpack_model`
+# (default ./scripts/model.sh, which sets up .venv-train).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+bin="${BIN:-target/release/worldpack}"
+teacher=fixtures/variants/worldpack_geometry_fused
+grid="${GRID:-999,499}"
+n=$(tr ',' '\n' <<<"$grid" | wc -l)
+run="${RUN:-runs/distill/${n}step}"
+out="${OUT:-fixtures/variants/worldpack_geometry_fused_${n}step}"
+read -r -a py <<<"${PY:-./scripts/model.sh}"
+case "${1:-}" in
+  data)
+    [ -x "$bin" ] || cargo build --release --bin worldpack
+    [ -f data/train120/index.json ] || { "$bin" sim dataset --trajectories 120 --out data/train120 && "$bin" plan --data data/train120 --memory-need; }
+    [ -f data/val/index.json ] || { "$bin" sim loopnav --per-cell 2 --seed 5 --out data/val && "$bin" plan --data data/val; } ;;
+  train)
+    [ -f "$run/cdit-worldpack.pt" ] || "${py[@]}" recover --model "$teacher" --run "$run"
+    "${py[@]}" encode --data data/train120 --run "$run" --device "${DEVICE:-auto}"
+    "${py[@]}" distill --data data/train120 --run "$run" --grid "$grid" --teacher-steps "${TEACHER_STEPS:-5}" \
+        --steps "${STEPS:-20000}" --batch "${BATCH:-64}" --device "${DEVICE:-auto}" --threads "${THREADS:-1}" \
+        ${LR:+--lr "$LR"} ${MINUTES:+--minutes "$MINUTES"} ;;
+  export)
+    "${py[@]}" export --run "$run" --policy worldpack --distilled "$n" --layouts worldpack --data data/val --out "$out" \
+        --half --fusion-from "$teacher" --threads "${THREADS:-1}" ;;
+  *) sed -n '2,10p' "$0"; exit 2 ;;
+esac
