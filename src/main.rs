@@ -110,6 +110,12 @@ enum Command {
         /// Serve a non-loopback --addr without tokens: anyone who reaches it may use every session.
         #[arg(long)]
         allow_unauthenticated: bool,
+        /// Serve HTTPS: the certificate chain, a PEM file (with --tls-key; default: plain HTTP).
+        #[arg(long, requires = "tls_key")]
+        tls_cert: Option<PathBuf>,
+        /// The certificate's private key, a PEM file (PKCS#8, PKCS#1 or SEC1).
+        #[arg(long, requires = "tls_cert")]
+        tls_key: Option<PathBuf>,
     },
     /// Benchmarks (tables on stdout; --json for machines).
     Bench {
@@ -441,7 +447,7 @@ fn main() -> ExitCode {
                 report(sim::render_one(&out, seed, pose, biome, size, probe), "sim render")
             }
         },
-        Command::Serve { model, memory_only, model_backend, store, addr, provider, threads, steps, method, policy, max_queue, max_inflight, overlay_warp, covisible, batch_window_ms, batch_max, retain_idle_secs, tokens_file, max_sessions_per_tenant, rate_per_tenant, allow_unauthenticated } => {
+        Command::Serve { model, memory_only, model_backend, store, addr, provider, threads, steps, method, policy, max_queue, max_inflight, overlay_warp, covisible, batch_window_ms, batch_max, retain_idle_secs, tokens_file, max_sessions_per_tenant, rate_per_tenant, allow_unauthenticated, tls_cert, tls_key } => {
             if !(rate_per_tenant.is_finite() && rate_per_tenant > 0.0) {
                 eprintln!("worldpack serve: --rate-per-tenant: must be a positive number, got {rate_per_tenant}");
                 return ExitCode::from(2);
@@ -458,6 +464,7 @@ fn main() -> ExitCode {
             let config = api::Config {
                 tokens,
                 allow_unauthenticated,
+                tls: tls_cert.zip(tls_key),
                 addr,
                 store,
                 model: (!memory_only).then_some(model),

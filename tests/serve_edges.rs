@@ -126,3 +126,47 @@ fn readiness_names_a_store_that_cannot_be_reached_and_health_stays_live() {
     assert_eq!((code, r["down"][0]["name"].as_str()), (503, Some("store")), "{r}");
     assert_eq!(s.get("/v1/health").0, 200);
 }
+
+/// A self-signed certificate for 127.0.0.1 and its key, made by the openssl command line.
+fn self_signed(dir: &std::path::Path, name: &str) -> (std::path::PathBuf, std::path::PathBuf) {
+    let (cert, key) = (dir.join(format!("{name}.crt")), dir.join(format!("{name}.key")));
+    let status = std::process::Command::new("openssl")
+        .args(["req", "-x509", "-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:P-256", "-nodes", "-days", "2", "-subj", "/CN=127.0.0.1",
+               "-addext", "subjectAltName=IP:127.0.0.1", "-keyout"])
+        .arg(&key).arg("-out").arg(&cert).stderr(Stdio::null()).status().expect("openssl runs");
+    assert!(status.success(), "openssl made no certificate");
+    (cert, key)
+}
+
+/// `--tls-cert/--tls-key`: the server answers HTTPS that a client checking
+/// the certificate accepts (curl), says https in its startup line, answers
+/// no plain HTTP on that port, and stops on SIGTERM with exit 0; a missing
+/// certificate or a key of another certificate is refused by flag.
+#[test]
+fn tls_serves_https_and_refuses_bad_files_by_flag() {
+    let store = temp_store("tls");
+    let dir = store.parent().unwrap().to_path_buf();
+    std::fs::create_dir_all(&dir).unwrap();
+    let (cert, key) = self_signed(&dir, "server");
+    let mut s = Server::start(&store, &["--memory-only", "--tls-cert", cert.to_str().unwrap(), "--tls-key", key.to_str().unwrap()]);
+    assert!(s.url.starts_with("https://127.0.0.1:"), "{}", s.url);
+    let out = std::process::Command::new("curl")
+        .args(["-s", "--cacert"]).arg(&cert).arg(format!("{}/v1/health", s.url)).output().expect("curl runs");
+    let body: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap_or_else(|_| panic!("curl: {out:?}"));
+    assert_eq!(body["status"], json!("ok"), "{body}");
+    let plain = s.url.replace("https://", "http://");
+    assert!(ureq::get(&format!("{plain}/v1/health")).timeout(Duration::from_secs(5)).call().is_err(), "plain HTTP was answered");
+    assert_eq!(s.terminate(Duration::from_secs(10)).and_then(|st| st.code()), Some(0));
+
+    let (other_cert, _) = self_signed(&dir, "other");
+    let missing = dir.join("missing.crt");
+    for (cert_arg, key_arg, flag) in [(&missing, &key, "--tls-cert"), (&other_cert, &key, "--tls-key")] {
+        let out = std::process::Command::new(env!("CARGO_BIN_EXE_worldpack"))
+            .args(["serve", "--memory-only", "--addr", "127.0.0.1:0", "--store"]).arg(&store)
+            .arg("--tls-cert").arg(cert_arg).arg("--tls-key").arg(key_arg).output().unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{err}");
+        assert!(err.contains(flag), "{flag}: {err}");
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}

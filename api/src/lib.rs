@@ -13,6 +13,7 @@ mod routes;
 pub mod session;
 pub mod walk_bench;
 pub mod store;
+pub mod tls;
 
 use std::collections::HashMap;
 use std::net::SocketAddr;
@@ -71,6 +72,8 @@ pub struct Config {
     pub tokens: Arc<auth::Tokens>,
     /// Serve a non-loopback address without tokens (otherwise refused).
     pub allow_unauthenticated: bool,
+    /// HTTPS: the certificate chain and the private key, PEM files (`tls`); None: plain HTTP.
+    pub tls: Option<(PathBuf, PathBuf)>,
 }
 
 impl Default for Config {
@@ -95,6 +98,7 @@ impl Default for Config {
             retain_idle: None,
             tokens: Arc::default(),
             allow_unauthenticated: false,
+            tls: None,
         }
     }
 }
@@ -155,6 +159,7 @@ pub fn load_model(dir: &std::path::Path, backend: Option<&str>, runtime: model::
 pub struct Server {
     listener: tokio::net::TcpListener,
     router: Router,
+    tls: Option<tokio_rustls::TlsAcceptor>,
     pub description: String,
 }
 
@@ -207,17 +212,19 @@ impl Server {
             .layer(axum::middleware::from_fn_with_state(config.tokens.clone(), auth::authenticate))
             .layer(DefaultBodyLimit::max(config.max_body_bytes))
             .layer(tower_http::timeout::TimeoutLayer::with_status_code(axum::http::StatusCode::REQUEST_TIMEOUT, config.request_timeout));
+        let tls = config.tls.as_ref().map(|(cert, key)| tls::acceptor(cert, key)).transpose()?;
         let listener = tokio::net::TcpListener::bind(config.addr).await.map_err(|e| format!("--addr {}: {e}", config.addr))?;
         let addr = listener.local_addr().map_err(|e| e.to_string())?;
+        let scheme = if tls.is_some() { "https" } else { "http" };
         let description = format!(
-            "listening on http://{addr} (model: {}, provider: {}{}, store: {}, {restored} sessions restored, {})",
+            "listening on {scheme}://{addr} (model: {}, provider: {}{}, store: {}, {restored} sessions restored, {})",
             config.model.as_ref().map_or("none (memory only)".into(), |p| p.display().to_string()),
             state.engine.model.as_ref().map_or("-", |m| m.provider()),
             config.model_backend.as_ref().map_or(String::new(), |url| format!(" at {url}")),
             Store::describe(&config.store),
             if config.tokens.enabled() { format!("tokens for tenants {}", config.tokens.tenants().join(", ")) } else { "no tokens: open".into() }
         );
-        Ok(Server { listener, router, description })
+        Ok(Server { listener, router, tls, description })
     }
 
     pub fn local_addr(&self) -> SocketAddr {
@@ -226,7 +233,13 @@ impl Server {
 
     /// Serves until Ctrl-C or SIGTERM, finishing requests in flight.
     pub async fn run(self) -> Result<(), String> {
-        axum::serve(self.listener, self.router).with_graceful_shutdown(shutdown()).await.map_err(|e| e.to_string())
+        match self.tls {
+            Some(acceptor) => {
+                let listener = tls::TlsListener::new(self.listener, acceptor).map_err(|e| e.to_string())?;
+                axum::serve(listener, self.router).with_graceful_shutdown(shutdown()).await.map_err(|e| e.to_string())
+            }
+            None => axum::serve(self.listener, self.router).with_graceful_shutdown(shutdown()).await.map_err(|e| e.to_string()),
+        }
     }
 }
 
