@@ -1,10 +1,5 @@
 //! `worldpack`: the product's command line.
 
-mod bench;
-mod bench_serve;
-mod bench_store;
-mod bench_walk;
-mod bench_step;
 mod cli;
 mod demo;
 mod eval;
@@ -257,7 +252,7 @@ enum BenchCommand {
         #[arg(long, value_delimiter = ',', default_value = "50,100,400,1600,10000,100000")]
         candidates: Vec<usize>,
         #[arg(long, value_enum, default_value = "walk")]
-        workload: bench::Workload,
+        workload: benchmarks::select::Workload,
         /// Target poses per size (each timed once for the indexed path).
         #[arg(long, default_value_t = 30, value_parser = clap::value_parser!(u64).range(1..=10_000))]
         queries: u64,
@@ -393,13 +388,13 @@ fn main() -> ExitCode {
                 eprintln!("worldpack bench select: --candidates must lie in 1..=2000000, got {bad}");
                 return ExitCode::from(2);
             }
-            let rows = bench::run(workload, &candidates, queries as usize, true);
+            let rows = benchmarks::select::run(workload, &candidates, queries as usize, true);
             if json {
                 let out = serde_json::json!({ "workload": format!("{workload:?}").to_lowercase(), "rows": rows,
-                    "loglog_slope": (rows.len() >= 2).then(|| bench::loglog_slope(&rows)) });
+                    "loglog_slope": (rows.len() >= 2).then(|| benchmarks::select::loglog_slope(&rows)) });
                 println!("{out}");
             } else {
-                bench::print(workload, &rows);
+                benchmarks::select::print(workload, &rows);
             }
             ExitCode::SUCCESS
         }
@@ -409,7 +404,7 @@ fn main() -> ExitCode {
                 return ExitCode::from(2);
             }
             let batches: Vec<usize> = batches.iter().map(|&b| b as usize).collect();
-            report(bench_step::run(&model, model::RuntimeOptions { provider, threads }, &steps, calls as usize, &batches, json), "bench step")
+            report(benchmarks::step::run(&model, model::RuntimeOptions { provider, threads }, &steps, calls as usize, &batches, json), "bench step")
         }
         Command::Bench { what: BenchCommand::Serve { model, steps, calls, sessions, per_session, provider, threads, batch_window_ms, model_backend, json } } => {
             if let Some(bad) = sessions.iter().find(|&&n| n == 0 || n > 256) {
@@ -417,7 +412,7 @@ fn main() -> ExitCode {
                 return ExitCode::from(2);
             }
             let runtime = model::RuntimeOptions { provider, threads };
-            report(bench_serve::run(&model, runtime, steps as usize, calls as usize, &sessions, per_session as usize, batch_window_ms, model_backend.as_deref(), json), "bench serve")
+            report(benchmarks::serve::run(&model, runtime, steps as usize, calls as usize, &sessions, per_session as usize, batch_window_ms, model_backend.as_deref(), json), "bench serve")
         }
         Command::Bench { what: BenchCommand::Walk { model, steps, method, covisible, sessions, walk_steps, explore, provider, threads, json } } => {
             if let Some(bad) = sessions.iter().find(|&&n| n == 0 || n > 256) {
@@ -425,12 +420,12 @@ fn main() -> ExitCode {
                 return ExitCode::from(2);
             }
             let runtime = model::RuntimeOptions { provider, threads };
-            let o = bench_walk::Options { steps: steps as usize, method, covisible, walk_steps: walk_steps as usize, explore: explore as usize };
-            report(bench_walk::run(&model, runtime, &o, &sessions, json), "bench walk")
+            let o = benchmarks::walk::Options { steps: steps as usize, method, covisible, walk_steps: walk_steps as usize, explore: explore as usize };
+            report(benchmarks::walk::run(&model, runtime, &o, &sessions, json), "bench walk")
         }
-        Command::Bench { what: BenchCommand::Store { frames, json } } => report(bench_store::run(frames as usize, json), "bench store"),
+        Command::Bench { what: BenchCommand::Store { frames, json } } => report(benchmarks::store::run(frames as usize, json), "bench store"),
         Command::Bench { what: BenchCommand::StepProbe { model, layout, provider, threads, calls } } => {
-            report(bench_step::probe(&model, &layout, model::RuntimeOptions { provider, threads }, calls), "bench step-probe")
+            report(benchmarks::step::probe(&model, &layout, model::RuntimeOptions { provider, threads }, calls), "bench step-probe")
         }
         Command::Bench { what: BenchCommand::Render { frames, seed } } => report(sim::bench_render(frames as usize, seed), "bench render"),
         Command::Sim { what } => match what {

@@ -11,7 +11,6 @@ pub mod postgres_store;
 mod retention;
 mod routes;
 pub mod session;
-pub mod walk_bench;
 pub mod store;
 pub mod tls;
 

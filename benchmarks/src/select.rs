@@ -84,14 +84,14 @@ pub fn run(workload: Workload, sizes: &[usize], queries: usize, progress: bool) 
             }
             let mut frames: Vec<MemoryFrame> =
                 (0..n).map(|t| MemoryFrame { id: t as u64, time: t as u64, frustum: all[t].clone() }).collect();
-            let rss_before = crate::bench_step::status_kib("VmRSS:").ok();
+            let rss_before = crate::step::status_kib("VmRSS:").ok();
             let mut memory = FrameMemory::new();
             let insert_start = Instant::now();
             for f in &frames {
                 memory.insert(f.clone()).expect("unique ids");
             }
             let insert_us = insert_start.elapsed().as_secs_f64() * 1e6 / n as f64;
-            let rss_after = crate::bench_step::status_kib("VmRSS:").ok();
+            let rss_after = crate::step::status_kib("VmRSS:").ok();
             let index_bytes_per_frame = rss_before.zip(rss_after).map(|(a, b)| b.saturating_sub(a) as f64 * 1024.0 / n as f64);
             // Targets: the poses that follow the stored history.
             let targets: Vec<Frustum> = all[n..n + queries].to_vec();

@@ -1,18 +1,21 @@
-//! What a step of the main job costs as a user drives it: each session
-//! observes an exploration of the synthetic world, turns round and
-//! generates its way back through `Engine::step`, the call the server's
-//! step handler makes (durable commit included). Only the generated steps
-//! are timed, stage by stage.
+//! `worldpack bench walk`: what a step of the main job costs as a user
+//! drives it. Each session observes an exploration of the synthetic world,
+//! turns round and generates its way back through `Engine::step`, the call
+//! the server's step handler makes (durable commit included). Only the
+//! generated steps are timed, stage by stage.
 
+use std::path::Path;
 use std::sync::Barrier;
 use std::time::Instant;
 
-use model::Sampler;
+use anyhow::{Result, anyhow};
+use api::ApiError;
+use api::engine::Engine;
+use api::store::Store;
+use model::{Method, RuntimeOptions, Sampler};
 use motion::Action;
 use serde::Serialize;
-
-use crate::ApiError;
-use crate::engine::Engine;
+use serde_json::json;
 
 /// The walk each session takes.
 #[derive(Clone, Copy, Debug)]
@@ -57,7 +60,7 @@ fn action(walk: &Walk, i: usize) -> Action {
 /// when its generated steps began and ended. `ready` holds every walk at
 /// the turn until all have explored, so the timed phases overlap.
 fn one_walk(engine: &Engine, policy: &serde_json::Value, sampler: &Sampler, seed: u64, walk: &Walk, ready: &Barrier) -> Result<Timed, ApiError> {
-    let explored = (|| -> Result<crate::session::Session, ApiError> {
+    let explored = (|| -> Result<api::session::Session, ApiError> {
         let mut s = engine.create_synthetic(policy.clone(), seed, None, None)?;
         for i in 0..walk.explore {
             engine.step_observed(&mut s, &action(walk, i))?;
@@ -86,7 +89,7 @@ struct Timed {
 
 /// `sessions` walks at once on threads sharing `engine`; `steps` generated
 /// steps in all, split evenly (at least 25 each).
-pub fn run(engine: &Engine, policy: &serde_json::Value, sampler: &Sampler, sessions: usize, steps: usize, explore: usize) -> Result<WalkRow, ApiError> {
+pub fn walk_row(engine: &Engine, policy: &serde_json::Value, sampler: &Sampler, sessions: usize, steps: usize, explore: usize) -> Result<WalkRow, ApiError> {
     let back = steps.div_ceil(sessions).max(25);
     let walk = Walk { explore, back };
     let ready = Barrier::new(sessions);
@@ -114,4 +117,53 @@ pub fn run(engine: &Engine, policy: &serde_json::Value, sampler: &Sampler, sessi
         p99.push(eval::stats::percentile(&v, 0.99));
     }
     Ok(WalkRow { sessions, steps: generated, steps_per_s: generated as f64 / wall, p50_ms: p50, p99_ms: p99 })
+}
+
+pub struct Options {
+    pub steps: usize,
+    pub method: Method,
+    pub covisible: bool,
+    pub walk_steps: usize,
+    pub explore: usize,
+}
+
+pub fn run(model_dir: &Path, runtime: RuntimeOptions, o: &Options, sessions: &[usize], json_out: bool) -> Result<()> {
+    let dir = std::env::temp_dir().join(format!("worldpack-bench-walk-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let model = api::load_model(model_dir, None, runtime).map_err(anyhow::Error::msg)?;
+    let sampler = Sampler::new(&model.manifest().diffusion, o.steps, o.method, 0.0)?;
+    let mut engine = Engine::new(Store::open(&dir.join("store.redb"))?, Some(model));
+    engine.covisible = o.covisible;
+    let policy = json!({ "kind": "worldpack" });
+    let rows = sessions
+        .iter()
+        .map(|&n| walk_row(&engine, &policy, &sampler, n, o.walk_steps, o.explore).map_err(|e| anyhow!("{}: {}", e.field, e.message)))
+        .collect::<Result<Vec<_>>>();
+    drop(engine);
+    let _ = std::fs::remove_dir_all(&dir);
+    let rows = rows?;
+    if json_out {
+        let report = json!({ "model": model_dir, "steps": o.steps, "method": o.method.name(), "covisible": o.covisible,
+                             "threads": runtime.threads, "explore": o.explore, "stages": STAGES, "rows": rows });
+        println!("{}", serde_json::to_string_pretty(&report)?);
+        return Ok(());
+    }
+    println!(
+        "model {}, {} {} steps, covisible {}, {} intra-op thread(s); {} observed steps, then the way back generated\n",
+        model_dir.display(), o.steps, o.method.name(), o.covisible, runtime.threads, o.explore
+    );
+    print!("{:>8} {:>6} {:>8}", "sessions", "steps", "steps/s");
+    for s in STAGES {
+        print!(" {:>15}", format!("{s} p50/p99"));
+    }
+    println!();
+    for r in &rows {
+        print!("{:>8} {:>6} {:>8.2}", r.sessions, r.steps, r.steps_per_s);
+        for k in 0..STAGES.len() {
+            print!(" {:>15}", format!("{:.1}/{:.1}", r.p50_ms[k], r.p99_ms[k]));
+        }
+        println!();
+    }
+    println!("\n(ms; p50/p99 over the generated steps of every session in the row)");
+    Ok(())
 }
