@@ -4,6 +4,8 @@
 use axum::Json;
 use axum::http::StatusCode;
 use axum::response::{IntoResponse, Response};
+use serde::Serialize;
+use utoipa::ToSchema;
 
 /// Seconds a refused client should wait before trying again (a step takes tens of milliseconds).
 pub const RETRY_AFTER_S: &str = "1";
@@ -35,7 +37,7 @@ impl ApiError {
 
 impl IntoResponse for ApiError {
     fn into_response(self) -> Response {
-        let body = crate::routes::ErrorBody { error: crate::routes::ErrorDetail { field: self.field, message: self.message } };
+        let body = ErrorBody { error: ErrorDetail { field: self.field, message: self.message } };
         // Refusals for load (a full session queue, too many model calls) are worth retrying; say when.
         if matches!(self.status, StatusCode::TOO_MANY_REQUESTS | StatusCode::SERVICE_UNAVAILABLE) {
             return (self.status, [(axum::http::header::RETRY_AFTER, RETRY_AFTER_S)], Json(body)).into_response();
@@ -68,4 +70,18 @@ impl From<crate::store::StoreError> for ApiError {
             other => ApiError::internal(other),
         }
     }
+}
+
+/// Every refusal: the field at fault (a JSON path into the request, or
+/// `session`, `index`, `content-type`, ...) and what is wrong with it.
+#[derive(Serialize, ToSchema)]
+pub struct ErrorBody {
+    pub error: ErrorDetail,
+}
+
+#[derive(Serialize, ToSchema)]
+pub struct ErrorDetail {
+    #[schema(example = "action.yaw_deg")]
+    pub field: String,
+    pub message: String,
 }

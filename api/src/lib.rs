@@ -8,6 +8,8 @@ pub mod engine;
 pub mod error;
 pub mod openapi;
 pub mod postgres_store;
+mod records;
+mod schemas;
 mod retention;
 mod routes;
 pub mod session;
@@ -208,6 +210,7 @@ impl Server {
             tokio::spawn(retention::expire_idle_sessions(state.clone(), idle));
         }
         let router = routes::router(state.clone())
+            .merge(utoipa_swagger_ui::SwaggerUi::new("/docs").external_url_unchecked("/openapi.json", openapi::document()))
             .layer(axum::middleware::from_fn_with_state(config.tokens.clone(), auth::authenticate))
             .layer(DefaultBodyLimit::max(config.max_body_bytes))
             .layer(tower_http::timeout::TimeoutLayer::with_status_code(axum::http::StatusCode::REQUEST_TIMEOUT, config.request_timeout));

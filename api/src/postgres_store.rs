@@ -8,7 +8,7 @@ use std::time::Duration;
 
 use postgres::{Client, NoTls};
 
-use crate::store::{FrameMeta, FrameRecord, SessionRecord, StoreError, err};
+use crate::records::{FrameMeta, FrameRecord, SessionRecord, StoreError, err};
 
 /// Schema versions in order; version `i + 1` is `MIGRATIONS[i]`. Append, never edit.
 const MIGRATIONS: &[&str] = &["

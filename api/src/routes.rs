@@ -25,8 +25,8 @@ use utoipa::ToSchema;
 use motion::Action;
 
 use crate::auth::Caller;
-use crate::error::ApiError;
-use crate::openapi::{self, MAX_COORDINATE, MAX_ID, MAX_TURN_DEG};
+use crate::error::{ApiError, ErrorBody};
+use crate::schemas::{self, MAX_COORDINATE, MAX_ID, MAX_TURN_DEG};
 use crate::session::{Session, policy_of};
 use crate::engine::meta;
 use world::picture::encode_png;
@@ -41,7 +41,6 @@ type St = State<Arc<AppState>>;
 
 pub fn router(state: Arc<AppState>) -> Router {
     Router::new()
-        .merge(utoipa_swagger_ui::SwaggerUi::new("/docs").external_url_unchecked("/openapi.json", openapi::document()))
         .route("/", get(|| async { axum::response::Redirect::to("/viewer") }))
         .route("/viewer", get(|| async { axum::response::Html(VIEWER) }))
         .route("/v1/health", get(health))
@@ -284,7 +283,7 @@ pub async fn metrics(State(st): St) -> Response {
 #[serde(deny_unknown_fields)]
 pub struct CreateRequest {
     #[serde(default)]
-    #[schema(schema_with = openapi::optional_policy)]
+    #[schema(schema_with = schemas::optional_policy)]
     policy: Option<Value>,
     #[serde(default)]
     synthetic: Option<SyntheticStart>,
@@ -292,7 +291,7 @@ pub struct CreateRequest {
     #[schema(min_items = 1)]
     frames: Option<Vec<FrameInput>>,
     #[serde(default)]
-    #[schema(schema_with = openapi::optional_intrinsics)]
+    #[schema(schema_with = schemas::optional_intrinsics)]
     intrinsics: Option<IntrinsicsInput>,
 }
 
@@ -304,7 +303,7 @@ pub struct SyntheticStart {
     seed: u64,
     /// Start on this biome (the world must have it).
     #[serde(default)]
-    #[schema(schema_with = openapi::optional_biome)]
+    #[schema(schema_with = schemas::optional_biome)]
     biome: Option<world::Biome>,
 }
 
@@ -314,7 +313,7 @@ pub struct FrameInput {
     /// A PNG (RGB, RGBA, grey or palette; 16-bit channels are cut to 8), base64, of the intrinsics' size.
     #[schema(content_encoding = "base64")]
     image_png: String,
-    #[schema(schema_with = openapi::pose_ref)]
+    #[schema(schema_with = schemas::pose_ref)]
     pose: PoseInput,
 }
 
@@ -434,11 +433,11 @@ pub async fn delete(State(st): St, caller: Caller, id: Result<Path<u64>, PathRej
 #[derive(Deserialize, ToSchema)]
 #[serde(deny_unknown_fields)]
 pub struct StepRequest {
-    #[schema(schema_with = openapi::action)]
+    #[schema(schema_with = schemas::action)]
     action: Action,
     /// The next camera pose, for sessions of real frames (the kinematic motion model is used without it).
     #[serde(default)]
-    #[schema(schema_with = openapi::optional_pose)]
+    #[schema(schema_with = schemas::optional_pose)]
     pose: Option<PoseInput>,
     /// Sampler steps (default: the server's --steps).
     #[serde(default)]
@@ -540,11 +539,11 @@ pub struct ObserveRequest {
     /// A PNG (RGB, RGBA, grey or palette; 16-bit channels are cut to 8), base64, of the session's image size.
     #[schema(content_encoding = "base64")]
     image_png: String,
-    #[schema(schema_with = openapi::pose_ref)]
+    #[schema(schema_with = schemas::pose_ref)]
     pose: PoseInput,
     /// The action that led here, when known.
     #[serde(default)]
-    #[schema(schema_with = openapi::optional_action)]
+    #[schema(schema_with = schemas::optional_action)]
     action: Option<Action>,
     /// Depth as a 16-bit grayscale PNG in millimetres (0 = unknown), the image's size, base64.
     #[serde(default)]
@@ -601,7 +600,7 @@ pub async fn observe(State(st): St, caller: Caller, id: Result<Path<u64>, PathRe
 #[derive(Deserialize, ToSchema)]
 #[serde(deny_unknown_fields)]
 pub struct SelectRequest {
-    #[schema(schema_with = openapi::pose_ref)]
+    #[schema(schema_with = schemas::pose_ref)]
     pose: PoseInput,
     /// Occlusion-aware selection: rank the policy's frustum candidates by the
     /// share of the query view's expected surface each saw unoccluded, from
@@ -777,20 +776,6 @@ pub async fn frame_truth(State(st): St, caller: Caller, p: Result<Path<(u64, u64
 
 // ---- answers -------------------------------------------------------------
 
-/// Every refusal: the field at fault (a JSON path into the request, or
-/// `session`, `index`, `content-type`, ...) and what is wrong with it.
-#[derive(Serialize, ToSchema)]
-pub struct ErrorBody {
-    pub error: ErrorDetail,
-}
-
-#[derive(Serialize, ToSchema)]
-pub struct ErrorDetail {
-    #[schema(example = "action.yaw_deg")]
-    pub field: String,
-    pub message: String,
-}
-
 #[derive(Serialize, ToSchema)]
 pub struct Readiness {
     pub ready: bool,
@@ -829,11 +814,11 @@ pub struct Created {
 pub struct SessionInfo {
     pub session: u64,
     pub frames: usize,
-    #[schema(schema_with = openapi::resolved_policy_ref)]
+    #[schema(schema_with = schemas::resolved_policy_ref)]
     pub policy: Policy,
     /// The synthetic world's seed; null for a session of real frames.
     pub world_seed: Option<u64>,
-    #[schema(schema_with = openapi::camera_ref)]
+    #[schema(schema_with = schemas::camera_ref)]
     pub intrinsics: Intrinsics,
     /// Whether stored frames carry latents (a model was loaded when they came).
     pub has_latents: bool,
