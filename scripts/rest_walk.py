@@ -74,11 +74,12 @@ def png_to_rgb(png: bytes) -> np.ndarray:
 OBSERVABLE = ("look around", "out")
 
 
-def run_row(binary: str, model: str, policy: str, seed: int, steps: int, method: str, observe_outbound: bool = False) -> dict:
+def run_row(binary: str, model: str, policy: str, seed: int, steps: int, method: str, observe_outbound: bool = False,
+            covisible: bool = False) -> dict:
     port = free_port()
     with tempfile.TemporaryDirectory() as tmp:
         server = subprocess.Popen([binary, "serve", "--model", model, "--store", f"{tmp}/walk.redb", "--addr", f"127.0.0.1:{port}",
-                                   "--policy", policy, "--steps", str(steps), "--method", method],
+                                   "--policy", policy, "--steps", str(steps), "--method", method] + (["--covisible"] if covisible else []),
                                   stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
         base = f"http://127.0.0.1:{port}"
         try:
@@ -156,6 +157,7 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=3)
     ap.add_argument("--steps", type=int, default=10, help="sampler steps per frame")
     ap.add_argument("--method", default="ddim")
+    ap.add_argument("--covisible", action="store_true", help="serve with --covisible, as ./scripts/serve.sh does")
     ap.add_argument("--out", type=Path, required=True, help="path prefix for .json, .png and -strip.png")
     ap.add_argument("--observe-outbound", action="store_true",
                     help="observe the look-around and the way out (the world's frames and depth); generate only the way back")
@@ -167,7 +169,7 @@ def main() -> None:
         if not (name and model and policy):
             sys.exit(f"--row {spec!r}: expected NAME=MODEL_FOLDER:POLICY")
         print(f"{name}: {model} with {policy}", flush=True)
-        results[name] = run_row(a.bin, model, policy, a.seed, a.steps, a.method, a.observe_outbound)
+        results[name] = run_row(a.bin, model, policy, a.seed, a.steps, a.method, a.observe_outbound, a.covisible)
     a.out.parent.mkdir(parents=True, exist_ok=True)
     summary = {}
     for name, r in results.items():

@@ -53,28 +53,43 @@ def test_a_synthetic_session_driven_from_the_page(browser, tmp_path):
         page, foreign = offline_page(browser, url)
         page.goto(url + "/")  # redirects to /viewer
         assert page.url.endswith("/viewer")
+        failed = []  # every answer of 400 or more the page gets
+        page.on("response", lambda r: failed.append(f"{r.status} {r.url}") if r.status >= 400 else None)
         page.wait_for_function("document.querySelector('#server').textContent.includes('model')")
+        # Before any session: no broken images, an empty box that says why.
+        assert page.get_attribute("#frame", "src") is None
+        assert page.is_visible("#frame-empty") and page.is_visible("#truth-empty")
         page.fill("#seed", "3")
         page.click("#create")
-        page.wait_for_function("document.querySelector('#session-label').textContent.includes('1 frames')")
+        page.wait_for_function("document.querySelector('#session-label').textContent.includes('1 frame,')")
+        # The first frame's truth is shown (the world renders it), and the empty boxes are gone.
+        page.wait_for_function("!!document.querySelector('#truth').getAttribute('src')")
+        assert not page.is_visible("#frame-empty") and not page.is_visible("#truth-empty")
         blank_map = map_pixels(page)
-        # Keyboard and buttons: three steps forward, a turn, one more forward.
-        for i, press in enumerate(["w", "w", "w", "button:ArrowRight", "w"], start=1):
-            if press.startswith("button:"):
+        # Keyboard and buttons: three steps forward, a turn, one more forward; the
+        # keyboard drives right after a click on a checkbox (clicked twice: left off).
+        for i, press in enumerate(["w", "w", "w", "button:ArrowRight", "checkbox", "w"], start=1):
+            if press == "checkbox":
+                page.click("#observe")
+                page.click("#observe")
+                page.keyboard.press("w")
+            elif press.startswith("button:"):
                 page.click(f"#drive button[data-key='{press.split(':')[1]}']")
             else:
                 page.keyboard.press(press)
             page.wait_for_function(f"document.querySelector('#frame').dataset.index === '{i}'")
+            # The status line follows the session.
+            assert f"{i + 1} frames" in page.inner_text("#session-label"), page.inner_text("#session-label")
         assert page.get_attribute("#frame", "src").startswith("data:image/png;base64,")
         assert "PSNR" in page.inner_text("#metrics")
         thumbs = page.query_selector_all("#plan .thumb")
-        assert len(thumbs) == 5, "WorldPack packs every earlier frame while there are fewer than 22"
+        assert len(thumbs) == 6, "WorldPack packs every earlier frame while there are fewer than 22"
         rates = [t.get_attribute("data-rate") for t in thumbs]
-        assert rates == ["1", "1", "4", "4", "4"], "best two at full rate, the next four at 1/4"
-        assert page.get_attribute("#map", "data-frames") == "6"
-        assert page.get_attribute("#map", "data-frusta") == "5"
+        assert rates == ["1", "1", "4", "4", "4", "4"], "best two at full rate, the next four at 1/4"
+        assert page.get_attribute("#map", "data-frames") == "7"
+        assert page.get_attribute("#map", "data-frusta") == "6"
         assert map_pixels(page) != blank_map
-        assert len(page.query_selector_all("#strip img")) == 6
+        assert len(page.query_selector_all("#strip img")) == 7
         # Every thumbnail loaded from the server.
         page.wait_for_function("[...document.querySelectorAll('#plan img')].every(i => i.complete && i.naturalWidth === 64)")
         assert "sample" in page.inner_text("#timings")
@@ -85,10 +100,14 @@ def test_a_synthetic_session_driven_from_the_page(browser, tmp_path):
         page.fill("#open-id", "1")
         page.click("#open")
         page.wait_for_function("document.querySelector('#error').textContent === ''")
+        page.wait_for_function("document.querySelector('#session-label').textContent.includes('7 frames')")
+        page.wait_for_function("!!document.querySelector('#truth').getAttribute('src')")
+        # The only refusal the page met is the session that does not exist.
+        assert [f for f in failed if "/v1/sessions/999999" not in f] == [], failed
         out = Path(os.environ.get("VIEWER_SCREENSHOT", tmp_path / "viewer.png"))
         out.parent.mkdir(parents=True, exist_ok=True)
         page.keyboard.press("w")
-        page.wait_for_function("document.querySelector('#frame').dataset.index === '6'")
+        page.wait_for_function("document.querySelector('#frame').dataset.index === '7'")
         page.wait_for_function("[...document.querySelectorAll('img')].every(i => !i.src || i.complete)")
         page.screenshot(path=str(out), full_page=True)
         assert out.stat().st_size > 10_000
@@ -147,7 +166,7 @@ def test_the_page_sends_its_token_to_a_server_with_tokens(browser, tmp_path):
         page.wait_for_function("document.querySelector('#error').textContent.includes('authorization')")
         page.fill("#token", "page-token")
         page.click("#create")
-        page.wait_for_function("document.querySelector('#session-label').textContent.includes('1 frames')")
+        page.wait_for_function("document.querySelector('#session-label').textContent.includes('1 frame,')")
         page.keyboard.press("w")
         page.wait_for_function("document.querySelector('#frame').dataset.index === '1'")
         # The thumbnails of what the memory chose came through with the token.
