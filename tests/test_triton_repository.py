@@ -26,7 +26,8 @@ def parse(path):
     return text_format.Parse(path.read_text(), model_config_pb2.ModelConfig())
 
 
-@pytest.mark.parametrize("model", ["fixtures/small", "fixtures/variants/worldpack_geometry", "fixtures/variants/worldpack_geometry_fused"])
+@pytest.mark.parametrize("model", ["fixtures/small", "fixtures/variants/worldpack_geometry", "fixtures/variants/worldpack_geometry_fused",
+                                   "fixtures/variants/worldpack_geometry_fused_1step"])
 def test_the_repository_parses_as_triton_model_configs_matching_the_manifest(tmp_path, model):
     model_dir = ROOT / model
     manifest = json.loads((model_dir / "manifest.json").read_text())
