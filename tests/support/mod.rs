@@ -5,7 +5,7 @@
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
-use std::sync::LazyLock;
+use std::sync::{LazyLock, Mutex};
 use std::time::Duration;
 
 use serde_json::{Value, json};
@@ -236,3 +236,110 @@ unsafe extern "C" {
     pub fn libc_kill(pid: i32, signal: i32) -> i32;
 }
 
+/// How long a Triton host may take to load a model folder's graphs.
+pub const TRITON_START: Duration = Duration::from_secs(240);
+
+/// The Triton tests run one at a time: each host loads every graph in its
+/// own Python and Triton processes, and several at once beside the other
+/// servers starve a small CI machine.
+pub fn triton_alone() -> std::sync::MutexGuard<'static, ()> {
+    static ONE: Mutex<()> = Mutex::new(());
+    ONE.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
+}
+
+/// `serving/triton/host.py`: a real Triton Inference Server (PyPI's
+/// `tritonserver`, in `.venv-triton`, which scripts/test.sh makes) hosting a
+/// model folder's graphs on free loopback ports; killed with its process
+/// group on drop.
+pub struct TritonHost {
+    child: Child,
+    pub ports: [u16; 3],
+    _stdout: BufReader<std::process::ChildStdout>,
+}
+
+impl TritonHost {
+    /// Starts it on `ports` (http, grpc, metrics) or on free ones. A start
+    /// on free ports that fails (another process took one of them between
+    /// the probe and Triton's bind) is tried once more on new ones.
+    pub fn start(model: &str, ports: Option<[u16; 3]>) -> TritonHost {
+        let free = || std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port();
+        match (TritonHost::try_start(model, ports.unwrap_or_else(|| [free(), free(), free()])), ports) {
+            (Ok(host), _) => host,
+            (Err(why), Some(_)) => panic!("{why}"),
+            (Err(why), None) => {
+                eprintln!("{why}; trying once more on other ports");
+                TritonHost::try_start(model, [free(), free(), free()]).unwrap_or_else(|why| panic!("{why}"))
+            }
+        }
+    }
+
+    /// Waits at most [`TRITON_START`] for `serving/triton/host.py` to say it
+    /// serves; otherwise kills it and returns why, with the end of its log.
+    fn try_start(model: &str, [http, grpc, metrics]: [u16; 3]) -> Result<TritonHost, String> {
+        use std::os::unix::process::CommandExt;
+        let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+        let python = std::env::var_os("WORLDPACK_TRITON_PYTHON").map(PathBuf::from).unwrap_or(root.join(".venv-triton/bin/python"));
+        assert!(python.exists(), "{} is missing: run ./scripts/test.sh once (it makes .venv-triton with PyPI's nvidia-pytriton)", python.display());
+        let log = std::env::temp_dir().join(format!("worldpack-triton-{}-{http}.log", std::process::id()));
+        let mut child = Command::new(python)
+            .arg(root.join("serving/triton/host.py"))
+            .arg("--model").arg(root.join(model))
+            .args(["--http-port", &http.to_string(), "--grpc-port", &grpc.to_string(), "--metrics-port", &metrics.to_string()])
+            .stdout(Stdio::piped())
+            .stderr(std::fs::File::create(&log).unwrap())
+            .process_group(0)
+            .spawn()
+            .unwrap();
+        // The first line that says "serving", read on a thread so that the wait has a deadline.
+        let (said, heard) = std::sync::mpsc::channel();
+        let mut stdout = BufReader::new(child.stdout.take().unwrap());
+        std::thread::spawn(move || {
+            let mut line = String::new();
+            while !line.starts_with("serving ") {
+                line.clear();
+                if stdout.read_line(&mut line).unwrap_or(0) == 0 {
+                    return; // dropping `said` reports the exit
+                }
+            }
+            let _ = said.send(stdout);
+        });
+        match heard.recv_timeout(TRITON_START) {
+            Ok(stdout) => Ok(TritonHost { child, ports: [http, grpc, metrics], _stdout: stdout }),
+            Err(waited) => {
+                unsafe { libc_kill(-(child.id() as i32), 9) };
+                let _ = child.wait();
+                let text = std::fs::read_to_string(&log).unwrap_or_default();
+                let tail: Vec<&str> = text.lines().rev().take(15).collect::<Vec<_>>().into_iter().rev().collect();
+                let how = match waited {
+                    std::sync::mpsc::RecvTimeoutError::Timeout => format!("did not serve within {TRITON_START:?}"),
+                    std::sync::mpsc::RecvTimeoutError::Disconnected => "exited before serving".into(),
+                };
+                Err(format!("serving/triton/host.py on ports {http}/{grpc}/{metrics} {how}; the end of its log ({}):\n{}", log.display(), tail.join("\n")))
+            }
+        }
+    }
+
+    /// The `--model-backend` URL.
+    pub fn backend(&self) -> String {
+        format!("triton://127.0.0.1:{}", self.ports[0])
+    }
+
+    /// A counter from Triton's Prometheus metrics for one model.
+    pub fn metric(&self, name: &str, model: &str) -> f64 {
+        let text = HTTP.get(&format!("http://127.0.0.1:{}/metrics", self.ports[2])).call().unwrap().into_string().unwrap();
+        let prefix = format!("{name}{{model=\"{model}\",");
+        text.lines().find(|l| l.starts_with(&prefix)).and_then(|l| l.rsplit(' ').next()).and_then(|v| v.parse().ok())
+            .unwrap_or_else(|| panic!("no {prefix} in Triton's metrics"))
+    }
+
+    pub fn stop(&mut self) {
+        unsafe { libc_kill(-(self.child.id() as i32), 9) }; // the whole group: python and tritonserver
+        let _ = self.child.wait();
+    }
+}
+
+impl Drop for TritonHost {
+    fn drop(&mut self) {
+        self.stop();
+    }
+}
