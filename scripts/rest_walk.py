@@ -140,12 +140,14 @@ def strip(results: dict, path: Path, scale: int = 2) -> None:
     first = next(iter(results.values()))
     indices = sorted(first["truths"])
     rows = [("truth", [first["truths"][i] for i in indices])] + [(n, [r["frames"][i] for i in indices]) for n, r in results.items()]
-    label_w = 150
+    # As wide as the longest name needs: labels are never cut.
+    font, size = cv2.FONT_HERSHEY_SIMPLEX, 0.38
+    label_w = 12 + max(cv2.getTextSize(name, font, size, 1)[0][0] for name, _ in rows)
     tiles = []
     for name, images in rows:
         line = np.concatenate([cv2.resize(im, None, fx=scale, fy=scale, interpolation=cv2.INTER_NEAREST) for im in images], axis=1)
         label = np.full((line.shape[0], label_w, 3), 255, np.uint8)
-        cv2.putText(label, name[:22], (4, line.shape[0] // 2), cv2.FONT_HERSHEY_SIMPLEX, 0.38, (0, 0, 0), 1, cv2.LINE_AA)
+        cv2.putText(label, name, (4, line.shape[0] // 2), font, size, (0, 0, 0), 1, cv2.LINE_AA)
         tiles.append(np.concatenate([label, line], axis=1))
     cv2.imwrite(str(path), cv2.cvtColor(np.concatenate(tiles, axis=0), cv2.COLOR_RGB2BGR))
 

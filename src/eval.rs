@@ -85,6 +85,9 @@ pub struct Options {
     /// Run only these model rows (repeatable; default: every row), e.g. only NAME_covisible.
     #[arg(long = "only")]
     pub only: Vec<String>,
+    /// An --extra row whose fusion-head model keeps each generated frame's sampled latent instead of re-encoding the blend, as `serve --sampled-latents` (repeatable).
+    #[arg(long = "sampled-latents")]
+    pub sampled_latents: Vec<String>,
 }
 
 impl Options {
@@ -113,6 +116,7 @@ impl Options {
             covisible: self.covisible.clone(),
             plan_warps: self.plan_warps.clone(),
             only: self.only.clone(),
+            sampled_latents: self.sampled_latents.clone(),
         }
     }
 }

@@ -111,6 +111,9 @@ enum Command {
         /// The certificate's private key, a PEM file (PKCS#8, PKCS#1 or SEC1).
         #[arg(long, requires = "tls_cert")]
         tls_key: Option<PathBuf>,
+        /// A fusion-head model's memory keeps each frame's sampled latent instead of re-encoding the blended frame shown (one encoder call less a step).
+        #[arg(long)]
+        sampled_latents: bool,
     },
     /// Benchmarks (tables on stdout; --json for machines).
     Bench {
@@ -329,6 +332,9 @@ enum BenchCommand {
         /// Choose plans and warp sources by co-visibility (as `serve --covisible`).
         #[arg(long, default_value_t = true, action = clap::ArgAction::Set)]
         covisible: bool,
+        /// As `serve --sampled-latents`.
+        #[arg(long)]
+        sampled_latents: bool,
         /// Comma-separated numbers of sessions walking at once.
         #[arg(long, value_delimiter = ',', default_value = "1,4,16")]
         sessions: Vec<usize>,
@@ -414,13 +420,13 @@ fn main() -> ExitCode {
             let runtime = model::RuntimeOptions { provider, threads };
             report(benchmarks::serve::run(&model, runtime, steps as usize, calls as usize, &sessions, per_session as usize, batch_window_ms, model_backend.as_deref(), json), "bench serve")
         }
-        Command::Bench { what: BenchCommand::Walk { model, steps, method, covisible, sessions, walk_steps, explore, provider, threads, json } } => {
+        Command::Bench { what: BenchCommand::Walk { model, steps, method, covisible, sampled_latents, sessions, walk_steps, explore, provider, threads, json } } => {
             if let Some(bad) = sessions.iter().find(|&&n| n == 0 || n > 256) {
                 eprintln!("worldpack bench walk: --sessions must lie in 1..=256, got {bad}");
                 return ExitCode::from(2);
             }
             let runtime = model::RuntimeOptions { provider, threads };
-            let o = benchmarks::walk::Options { steps: steps as usize, method, covisible, walk_steps: walk_steps as usize, explore: explore as usize };
+            let o = benchmarks::walk::Options { steps: steps as usize, method, covisible, sampled_latents, walk_steps: walk_steps as usize, explore: explore as usize };
             report(benchmarks::walk::run(&model, runtime, &o, &sessions, json), "bench walk")
         }
         Command::Bench { what: BenchCommand::Store { frames, json } } => report(benchmarks::store::run(frames as usize, json), "bench store"),
@@ -442,7 +448,7 @@ fn main() -> ExitCode {
                 report(sim::render_one(&out, seed, pose, biome, size, probe), "sim render")
             }
         },
-        Command::Serve { model, memory_only, model_backend, store, addr, provider, threads, steps, method, policy, max_queue, max_inflight, overlay_warp, covisible, batch_window_ms, batch_max, retain_idle_secs, tokens_file, max_sessions_per_tenant, rate_per_tenant, allow_unauthenticated, tls_cert, tls_key } => {
+        Command::Serve { model, memory_only, model_backend, store, addr, provider, threads, steps, method, policy, max_queue, max_inflight, overlay_warp, covisible, batch_window_ms, batch_max, retain_idle_secs, tokens_file, max_sessions_per_tenant, rate_per_tenant, allow_unauthenticated, tls_cert, tls_key, sampled_latents } => {
             if !(rate_per_tenant.is_finite() && rate_per_tenant > 0.0) {
                 eprintln!("worldpack serve: --rate-per-tenant: must be a positive number, got {rate_per_tenant}");
                 return ExitCode::from(2);
@@ -460,6 +466,7 @@ fn main() -> ExitCode {
                 tokens,
                 allow_unauthenticated,
                 tls: tls_cert.zip(tls_key),
+                sampled_latents,
                 addr,
                 store,
                 model: (!memory_only).then_some(model),

@@ -75,6 +75,9 @@ pub struct Config {
     pub allow_unauthenticated: bool,
     /// HTTPS: the certificate chain and the private key, PEM files (`tls`); None: plain HTTP.
     pub tls: Option<(PathBuf, PathBuf)>,
+    /// A fusion-head model's memory keeps each frame's sampled latent instead
+    /// of re-encoding the blended frame shown (one encoder call less a step).
+    pub sampled_latents: bool,
 }
 
 impl Default for Config {
@@ -100,6 +103,7 @@ impl Default for Config {
             tokens: Arc::default(),
             allow_unauthenticated: false,
             tls: None,
+            sampled_latents: false,
         }
     }
 }
@@ -170,7 +174,11 @@ impl Server {
         // A PostgreSQL client blocks on a runtime of its own: never on an async worker.
         let store = tokio::task::block_in_place(|| Store::open(&config.store)).map_err(|e| e.to_string())?;
         let model = match &config.model {
-            Some(dir) => Some(tokio::task::block_in_place(|| load_model(dir, config.model_backend.as_deref(), config.runtime))?),
+            Some(dir) => {
+                let mut m = tokio::task::block_in_place(|| load_model(dir, config.model_backend.as_deref(), config.runtime))?;
+                m.keep_sampled_latents(config.sampled_latents);
+                Some(m)
+            }
             None if config.model_backend.is_some() => return Err("--model-backend: a memory-only server runs no model".into()),
             None => None,
         };

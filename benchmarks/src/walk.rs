@@ -123,6 +123,7 @@ pub struct Options {
     pub steps: usize,
     pub method: Method,
     pub covisible: bool,
+    pub sampled_latents: bool,
     pub walk_steps: usize,
     pub explore: usize,
 }
@@ -130,7 +131,8 @@ pub struct Options {
 pub fn run(model_dir: &Path, runtime: RuntimeOptions, o: &Options, sessions: &[usize], json_out: bool) -> Result<()> {
     let dir = std::env::temp_dir().join(format!("worldpack-bench-walk-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
-    let model = api::load_model(model_dir, None, runtime).map_err(anyhow::Error::msg)?;
+    let mut model = api::load_model(model_dir, None, runtime).map_err(anyhow::Error::msg)?;
+    model.keep_sampled_latents(o.sampled_latents);
     let sampler = Sampler::new(&model.manifest().diffusion, o.steps, o.method, 0.0)?;
     let mut engine = Engine::new(Store::open(&dir.join("store.redb"))?, Some(model));
     engine.covisible = o.covisible;
@@ -143,14 +145,14 @@ pub fn run(model_dir: &Path, runtime: RuntimeOptions, o: &Options, sessions: &[u
     let _ = std::fs::remove_dir_all(&dir);
     let rows = rows?;
     if json_out {
-        let report = json!({ "model": model_dir, "steps": o.steps, "method": o.method.name(), "covisible": o.covisible,
+        let report = json!({ "model": model_dir, "steps": o.steps, "method": o.method.name(), "covisible": o.covisible, "sampled_latents": o.sampled_latents,
                              "threads": runtime.threads, "explore": o.explore, "stages": STAGES, "rows": rows });
         println!("{}", serde_json::to_string_pretty(&report)?);
         return Ok(());
     }
     println!(
-        "model {}, {} {} steps, covisible {}, {} intra-op thread(s); {} observed steps, then the way back generated\n",
-        model_dir.display(), o.steps, o.method.name(), o.covisible, runtime.threads, o.explore
+        "model {}, {} {} steps, covisible {}, sampled latents {}, {} intra-op thread(s); {} observed steps, then the way back generated\n",
+        model_dir.display(), o.steps, o.method.name(), o.covisible, o.sampled_latents, runtime.threads, o.explore
     );
     print!("{:>8} {:>6} {:>8}", "sessions", "steps", "steps/s");
     for s in STAGES {

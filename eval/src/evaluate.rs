@@ -67,6 +67,9 @@ pub struct Settings {
     /// own plan selected, as a row "NAME_plan_warps" each (the ablation of
     /// retrieval for a policy that has none, such as nearest frame packing).
     pub plan_warps: Vec<String>,
+    /// `extra` rows whose fusion-head model keeps each generated frame's sampled
+    /// latent in memory instead of re-encoding the blended frame (`Model::keep_sampled_latents`).
+    pub sampled_latents: Vec<String>,
     /// Model rows to run, by name (empty: all); e.g. only the `_covisible`
     /// rows, when the plain rows of the same models are not wanted.
     pub only: Vec<String>,
@@ -122,6 +125,9 @@ struct RowKey {
     batch: usize,
     #[serde(default)]
     generated_level: Option<f32>,
+    /// Whether the row's model kept sampled latents (rows saved before the option did not).
+    #[serde(default)]
+    sampled_latents: bool,
     /// How noise is seeded (rows saved before per-item seeds have none, and are recomputed).
     #[serde(default)]
     noise_seeding: String,
@@ -212,6 +218,12 @@ pub fn evaluate(s: &Settings, progress: &dyn Fn(Progress)) -> Result<Evaluation,
     let mut extras = Vec::with_capacity(s.extra.len());
     for (name, dir) in &s.extra {
         extras.push((name.clone(), load(dir, format!("--extra {name}={}", dir.display()))?));
+    }
+    for name in &s.sampled_latents {
+        let Some((_, m)) = extras.iter_mut().find(|(n, _)| n == name) else {
+            return Err(setting("--sampled-latents", format!("no --extra row called {name:?}")));
+        };
+        m.keep_sampled_latents(true);
     }
     if let Some(level) = s.generated_level {
         // Only models with a context-noise input take a level; at least one must.
@@ -313,6 +325,7 @@ pub fn evaluate(s: &Settings, progress: &dyn Fn(Progress)) -> Result<Evaluation,
             max_frames: s.max_frames,
             batch: s.batch,
             generated_level: s.generated_level,
+            sampled_latents: m.is_some_and(|m| m.keeps_sampled_latents()),
             noise_seeding: "per frame".into(),
             scores: SCORES.into(),
             reference: (!matches!(row.predictor, Predictor::Model { .. })).then(|| crate::probe::REFERENCE_RULES.to_string()),

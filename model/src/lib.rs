@@ -33,6 +33,7 @@ pub struct Model {
     dir: PathBuf,
     manifest: Manifest,
     backend: Box<dyn Backend>,
+    sampled_latents: bool,
 }
 
 impl Model {
@@ -46,7 +47,18 @@ impl Model {
 
     /// A model whose graphs run elsewhere (the manifest still describes them).
     pub fn with_backend(dir: &Path, manifest: Manifest, backend: Box<dyn Backend>) -> Model {
-        Model { dir: dir.to_path_buf(), manifest, backend }
+        Model { dir: dir.to_path_buf(), manifest, backend, sampled_latents: false }
+    }
+
+    /// With a fusion head: the memory keeps each generated frame's sampled
+    /// latent instead of re-encoding the blended frame that is shown, one
+    /// encoder call less a step (`serve --sampled-latents`).
+    pub fn keep_sampled_latents(&mut self, keep: bool) {
+        self.sampled_latents = keep;
+    }
+
+    pub fn keeps_sampled_latents(&self) -> bool {
+        self.sampled_latents
     }
 
     pub fn dir(&self) -> &Path {

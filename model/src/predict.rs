@@ -129,6 +129,8 @@ impl Model {
         let fused: Vec<usize> = (0..warps.len()).filter(|&j| warps[j].is_some()).collect();
         if manifest.fusion.is_some() && !fused.is_empty() {
             images = self.fuse(images, requests, warps, &fused)?;
+        }
+        if manifest.fusion.is_some() && !fused.is_empty() && !self.sampled_latents {
             // The memory keeps the frame shown: the blended ones re-encoded, the others as sampled.
             let n = images.data.len() / requests.len();
             let blended = Tensor::new(

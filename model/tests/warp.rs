@@ -152,7 +152,7 @@ fn a_fused_frame_does_not_depend_on_its_batch() {
     use model::{Method, Request, Sampler};
 
     let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../fixtures/variants/worldpack_geometry_fused");
-    let model = Model::load(&dir, RuntimeOptions { provider: Provider::Cpu, threads: 1 }).expect("the fused model loads");
+    let mut model = Model::load(&dir, RuntimeOptions { provider: Provider::Cpu, threads: 1 }).expect("the fused model loads");
     let WarpCases { k, shape, rgb, depth, src, dst, .. } = warp_cases();
     let pixels = shape[1] * shape[2];
     let first = &rgb[..pixels * 3];
@@ -181,4 +181,13 @@ fn a_fused_frame_does_not_depend_on_its_batch() {
     let again = model.encode(&shown).unwrap().data;
     let worst = again.iter().zip(&both[0].latent).map(|(a, b)| (a - b).abs()).fold(0f32, f32::max);
     assert!(worst < 0.05, "the stored latent is not the shown frame's: {worst}");
+    // With sampled latents kept, the same frame is shown, and its latent is the
+    // one the request without a warp would keep: what the sampler made, not the blend.
+    model.keep_sampled_latents(true);
+    let kept = model.predict(&policy.packing, &[with], &frame, &sampler).unwrap().frames.remove(0);
+    assert_eq!(kept.rgb, both[0].rgb, "the frame shown does not depend on what the memory keeps");
+    let moved = kept.latent.iter().zip(&both[0].latent).map(|(a, b)| (a - b).abs()).fold(0f32, f32::max);
+    assert!(moved > 0.05, "the kept latent is still the re-encoded blend (largest difference {moved})");
+    let resampled = kept.latent.iter().zip(&again).map(|(a, b)| (a - b).abs()).fold(0f32, f32::max);
+    assert!(resampled > 0.05, "the kept latent equals the blend's encoding");
 }
