@@ -1,12 +1,13 @@
 #!/usr/bin/env bash
 # The main job: serves the REST API over a committed model and a local store
 # (data/worldpack.redb). Without flags it serves what the held-out rollouts
-# recommend (docs/geometry.md): fixtures/variants/worldpack_geometry_fused,
-# WorldPack as the paper's Algorithm 1 with the observed frames warped into the
-# new view and its fusion head blending the frame with that warp, plans and
-# warp sources chosen by co-visibility (--covisible), 10 DDIM steps: the best
-# row on the 48-trajectory test suite; co-visibility is also the best on the
-# occluder suite. With flags, they all go to `worldpack serve` as
+# and the step benchmark recommend (docs/benchmarks.md#the-main-jobs-step):
+# fixtures/variants/worldpack_geometry_fused_1step, WorldPack as the paper's
+# Algorithm 1 with the observed frames warped into the new view and a fusion
+# head blending the frame with that warp, plans and warp sources chosen by
+# co-visibility (--covisible), its sampler distilled from 10 DDIM steps into
+# one (the manifest's grid; --steps and --method do not apply to it). With
+# flags, they all go to `worldpack serve` as
 # given (its own defaults: fixtures/small, 16 ancestral steps; see
 # `cargo run --release -- serve --help`). On first use it installs ONNX
 # Runtime (the PyPI wheel, pinned in tests/requirements.txt) into .venv.
@@ -18,6 +19,6 @@ if ! ls .venv/lib/python3*/site-packages/onnxruntime/capi/libonnxruntime.so* >/d
   .venv/bin/python -m pip install --disable-pip-version-check -q "$(grep '^onnxruntime==' tests/requirements.txt)"
 fi
 if [ $# -eq 0 ]; then
-  set -- --model fixtures/variants/worldpack_geometry_fused --policy worldpack --method ddim --steps 10 --covisible
+  set -- --model fixtures/variants/worldpack_geometry_fused_1step --policy worldpack --method ddim --steps 1 --covisible
 fi
 exec cargo run --release --bin worldpack -- serve "$@"
