@@ -37,7 +37,7 @@ from .cdit import CDiT
 from .config import LAYOUTS
 from .diffusion import Schedule
 from .recipe import ContextAugmenter, Recipe
-from .train import load_autoencoder, log, pick_device, run_config, save
+from .train import load_autoencoder, log, optimise, pick_device, run_config, save
 from .warp import batch_warp
 
 
@@ -164,13 +164,7 @@ def distill(data: Path, run: Path, policy: str, grid_text: str, teacher_steps: i
         v = student(x_t, t.float(), action, rel_time, groups, rates=layout.rates, warp=warp_in)
         x0_student = ab.sqrt() * x_t - (1 - ab).sqrt() * v
         loss = F.mse_loss(x0_student, x0_target)
-        opt.zero_grad(set_to_none=True)
-        loss.backward()
-        torch.nn.utils.clip_grad_norm_(student.parameters(), 10.0)
-        opt.step()
-        with torch.no_grad():
-            for pe, pm in zip(ema.parameters(), student.parameters()):
-                pe.lerp_(pm, 1 - ema_decay)
+        optimise(student, ema, opt, loss, ema_decay)
         step += 1
         seen += batch
         bar.update(1)

@@ -164,6 +164,17 @@ def load_initial_weights(model: CDiT, init_from: Path, dev: torch.device) -> Non
     print(f"initialised from {init_from}" + (f"; new, from their initialisation: {fresh}" if fresh else ""))
 
 
+def optimise(model: torch.nn.Module, ema: torch.nn.Module, opt: torch.optim.Optimizer, loss: torch.Tensor, ema_decay: float) -> None:
+    """One optimiser step on `loss` (gradients clipped to norm 10), then the EMA weights follow."""
+    opt.zero_grad(set_to_none=True)
+    loss.backward()
+    torch.nn.utils.clip_grad_norm_(model.parameters(), 10.0)
+    opt.step()
+    with torch.no_grad():
+        for pe, pm in zip(ema.parameters(), model.parameters()):
+            pe.lerp_(pm, 1 - ema_decay)
+
+
 def train_cdit(data: Path, run: Path, policy: str, steps: int, batch: int, lr: float, ema_decay: float,
                device: str, minutes: float | None, init_from: Path | None, memory_focus: float = 0.0,
                recipe: Recipe | None = None, warp: bool = False) -> None:
@@ -254,13 +265,7 @@ def train_cdit(data: Path, run: Path, policy: str, steps: int, batch: int, lr: f
         # are not a prefix of the model's must not train with the wrong projections.
         eps = model(xt, t.float(), action, rel_time, groups, rates=layout.rates, warp=warp_in)
         loss = F.mse_loss(eps, noise)
-        opt.zero_grad(set_to_none=True)
-        loss.backward()
-        torch.nn.utils.clip_grad_norm_(model.parameters(), 10.0)
-        opt.step()
-        with torch.no_grad():
-            for pe, pm in zip(ema.parameters(), model.parameters()):
-                pe.lerp_(pm, 1 - ema_decay)
+        optimise(model, ema, opt, loss, ema_decay)
         step += 1
         seen += batch
         bar.update(1)
