@@ -47,14 +47,15 @@ impl TlsListener {
         let (tx, ready) = mpsc::channel(64);
         tokio::spawn(async move {
             loop {
-                let Ok((stream, peer)) = tcp.accept().await else {
+                let accepted = tokio::select! {
+                    _ = tx.closed() => return, // the server has stopped: so does the listening socket
+                    accepted = tcp.accept() => accepted,
+                };
+                let Ok((stream, peer)) = accepted else {
                     // Out of file descriptors and the like: breathe, then go on.
                     tokio::time::sleep(Duration::from_millis(50)).await;
                     continue;
                 };
-                if tx.is_closed() {
-                    return; // the server has stopped
-                }
                 let (acceptor, tx) = (acceptor.clone(), tx.clone());
                 tokio::spawn(async move {
                     if let Ok(Ok(tls)) = tokio::time::timeout(HANDSHAKE_TIMEOUT, acceptor.accept(stream)).await {

@@ -145,14 +145,15 @@ pub fn run(model_dir: &Path, runtime: RuntimeOptions, o: &Options, sessions: &[u
     let _ = std::fs::remove_dir_all(&dir);
     let rows = rows?;
     if json_out {
-        let report = json!({ "model": model_dir, "steps": o.steps, "method": o.method.name(), "covisible": o.covisible, "sampled_latents": o.sampled_latents,
+        // What the sampler runs: a distilled model's own grid, whatever was asked.
+        let report = json!({ "model": model_dir, "steps": sampler.len(), "timesteps": sampler.timesteps, "method": sampler.method.name(), "covisible": o.covisible, "sampled_latents": o.sampled_latents,
                              "threads": runtime.threads, "explore": o.explore, "stages": STAGES, "rows": rows });
         println!("{}", serde_json::to_string_pretty(&report)?);
         return Ok(());
     }
     println!(
         "model {}, {} {} steps, covisible {}, sampled latents {}, {} intra-op thread(s); {} observed steps, then the way back generated\n",
-        model_dir.display(), o.steps, o.method.name(), o.covisible, o.sampled_latents, runtime.threads, o.explore
+        model_dir.display(), sampler.len(), sampler.method.name(), o.covisible, o.sampled_latents, runtime.threads, o.explore
     );
     print!("{:>8} {:>6} {:>8}", "sessions", "steps", "steps/s");
     for s in STAGES {
