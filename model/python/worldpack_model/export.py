@@ -244,6 +244,7 @@ def keep_fusion_head(source: Path, out: Path) -> None:
     shutil.copy(source / theirs["fusion"]["file"], out / theirs["fusion"]["file"])
     shutil.copytree(source / "reference" / "fusion", out / "reference" / "fusion", dirs_exist_ok=True)
     ours["fusion"] = {**theirs["fusion"], "from": source.name}
+    ours["reference"]["graphs"]["fusion"] = theirs["reference"]["graphs"]["fusion"]
     (out / "manifest.json").write_text(json.dumps(ours, indent=2))
 
 
