@@ -321,7 +321,7 @@ enum BenchCommand {
     /// generate their way back; p50 and p99 of each stage the step answer reports, per number
     /// of sessions walking at once. The defaults are `./scripts/serve.sh`'s.
     Walk {
-        #[arg(long, default_value = "fixtures/variants/worldpack_geometry_fused")]
+        #[arg(long, default_value = "fixtures/variants/worldpack_geometry_fused_1step")]
         model: PathBuf,
         /// Sampler steps per generated frame (a distilled model: its own count).
         #[arg(long, default_value_t = 10, value_parser = clap::value_parser!(u64).range(1..=1000))]
