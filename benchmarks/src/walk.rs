@@ -22,7 +22,7 @@ use serde_json::json;
 pub struct Walk {
     /// Observed steps before the turn (frames from the world, not timed).
     pub explore: usize,
-    /// Generated steps after it, timed.
+    /// Generated steps after the turn (the turn is generated and timed too).
     pub back: usize,
 }
 
@@ -40,20 +40,22 @@ pub struct WalkRow {
     pub p99_ms: Vec<f64>,
 }
 
-/// Exploration: forward, a slow left turn every 4th step; the turn: 18
+/// Generated steps that turn the walk round, 10 degrees each.
+const TURN: usize = 18;
+
+/// Exploration: forward, a slow left turn every 4th step; the turn: `TURN`
 /// steps of 10 degrees; the way back mirrors the exploration's turns.
 fn action(walk: &Walk, i: usize) -> Action {
-    let turn = 18;
     let yaw_deg = if i < walk.explore {
         if i % 4 == 0 { 8.0 } else { 0.0 }
-    } else if i < walk.explore + turn {
+    } else if i < walk.explore + TURN {
         10.0
     } else if i % 4 == 0 {
         -8.0
     } else {
         0.0
     };
-    Action { forward: !(walk.explore..walk.explore + turn).contains(&i), yaw_deg, ..Action::default() }
+    Action { forward: !(walk.explore..walk.explore + TURN).contains(&i), yaw_deg, ..Action::default() }
 }
 
 /// One session's walk: each generated step's stage timings and total, and
@@ -70,8 +72,8 @@ fn one_walk(engine: &Engine, policy: &serde_json::Value, sampler: &Sampler, seed
     ready.wait(); // also on an error, so the other walks are not left waiting
     let mut s = explored?;
     let began = Instant::now();
-    let mut times = Vec::with_capacity(walk.back + 18);
-    for i in walk.explore..walk.explore + 18 + walk.back {
+    let mut times = Vec::with_capacity(TURN + walk.back);
+    for i in walk.explore..walk.explore + TURN + walk.back {
         let t = Instant::now();
         let out = engine.step(&mut s, &action(walk, i), None, sampler, None)?;
         let total = t.elapsed().as_secs_f64() * 1e3;

@@ -129,17 +129,17 @@ impl Model {
         let fused: Vec<usize> = (0..warps.len()).filter(|&j| warps[j].is_some()).collect();
         if manifest.fusion.is_some() && !fused.is_empty() {
             images = self.fuse(images, requests, warps, &fused)?;
-        }
-        if manifest.fusion.is_some() && !fused.is_empty() && !self.sampled_latents {
-            // The memory keeps the frame shown: the blended ones re-encoded, the others as sampled.
-            let n = images.data.len() / requests.len();
-            let blended = Tensor::new(
-                [vec![fused.len()], images.shape[1..].to_vec()].concat(),
-                fused.iter().flat_map(|&j| images.data[j * n..(j + 1) * n].iter().copied()).collect(),
-            );
-            let encoded = self.encode(&blended)?;
-            for (i, &j) in fused.iter().enumerate() {
-                latent.data[j * per..(j + 1) * per].copy_from_slice(&encoded.data[i * per..(i + 1) * per]);
+            if !self.sampled_latents {
+                // The memory keeps the frame shown: the blended ones re-encoded, the others as sampled.
+                let n = images.data.len() / requests.len();
+                let blended = Tensor::new(
+                    [vec![fused.len()], images.shape[1..].to_vec()].concat(),
+                    fused.iter().flat_map(|&j| images.data[j * n..(j + 1) * n].iter().copied()).collect(),
+                );
+                let encoded = self.encode(&blended)?;
+                for (i, &j) in fused.iter().enumerate() {
+                    latent.data[j * per..(j + 1) * per].copy_from_slice(&encoded.data[i * per..(i + 1) * per]);
+                }
             }
         }
         let frames = (0..requests.len())

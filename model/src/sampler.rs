@@ -65,25 +65,24 @@ impl Sampler {
             acc *= 1.0 - beta;
             alphas_cumprod.push(acc);
         }
-        // unique(round(linspace(0, total-1, steps))), round half to even as numpy does.
-        let mut kept: Vec<usize> = (0..steps)
-            .map(|i| if steps == 1 { 0.0 } else { (total - 1) as f64 * i as f64 / (steps - 1) as f64 })
-            .map(|x| x.round_ties_even() as usize)
-            .collect();
-        kept.dedup();
-        kept.reverse();
-        if let Some(d) = &schedule.distilled {
+        let (kept, method, eta) = match &schedule.distilled {
             // A student learned its own grid's jumps and nothing else: whatever
             // was asked, it runs them, by deterministic DDIM.
-            return Ok(Sampler::from_kept(d.timesteps.clone(), &alphas_cumprod, Method::Ddim, 0.0));
-        }
-        Ok(Sampler::from_kept(kept, &alphas_cumprod, method, eta))
-    }
-
-    fn from_kept(kept: Vec<usize>, alphas_cumprod: &[f64], method: Method, eta: f64) -> Sampler {
+            Some(d) => (d.timesteps.clone(), Method::Ddim, 0.0),
+            None => {
+                // unique(round(linspace(0, total-1, steps))), round half to even as numpy does.
+                let mut kept: Vec<usize> = (0..steps)
+                    .map(|i| if steps == 1 { 0.0 } else { (total - 1) as f64 * i as f64 / (steps - 1) as f64 })
+                    .map(|x| x.round_ties_even() as usize)
+                    .collect();
+                kept.dedup();
+                kept.reverse();
+                (kept, method, eta)
+            }
+        };
         let abar: Vec<f64> = kept.iter().map(|&t| alphas_cumprod[t]).collect();
         let abar_prev = (0..kept.len()).map(|i| if i + 1 < kept.len() { abar[i + 1] } else { 1.0 }).collect();
-        Sampler { method, eta, timesteps: kept, abar, abar_prev }
+        Ok(Sampler { method, eta, timesteps: kept, abar, abar_prev })
     }
 
     pub fn len(&self) -> usize {
