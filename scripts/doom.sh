@@ -3,7 +3,7 @@
 # the model family trained on it in the paper's order, rollouts on maps never
 # trained on. Each stage resumes or reuses what is done; run them in order,
 # in the background on one thread (THREADS) while you work on the other core.
-#   ./scripts/doom.sh data                 # data/doom-{train,val,test}: 400 / 16 / 48 walks, checked and planned
+#   ./scripts/doom.sh data                 # data/doom-{train,val,test,test-abca}: 400 / 16 / 48 / 48 walks, checked and planned
 #   ./scripts/doom.sh autoencoder          # the voxel autoencoder fine-tuned on Doom frames, then the latent cache
 #   ./scripts/doom.sh baseline             # the 4-frame baseline: baseline_25k fine-tuned on Doom (STEPS, MINUTES)
 #   ./scripts/doom.sh worldpack            # WorldPack with the warp input: worldpack_25k fine-tuned on Doom (STEPS, MINUTES)
@@ -27,12 +27,14 @@ case "${1:-}" in
     .venv-train/bin/python -m pip install --disable-pip-version-check -q -r doom/requirements.txt
     workers="${WORKERS:-2}"
     [ -f data/doom-test/index.json ] || doom suite --split test --count 48 --seed 2 --workers "$workers" --out ../data/doom-test
+    [ -f data/doom-test-abca/index.json ] || doom suite --split test --task abca --count 48 --seed 4 --workers "$workers" --out ../data/doom-test-abca
     [ -f data/doom-val/index.json ] || doom suite --split train --count 16 --seed 3 --workers "$workers" --out ../data/doom-val
     [ -f data/doom-train/index.json ] || doom suite --split train --count 400 --seed 1 --workers "$workers" --out ../data/doom-train
-    for d in data/doom-test data/doom-val data/doom-train; do "$bin" check --data "$d"; done
+    for d in data/doom-test data/doom-test-abca data/doom-val data/doom-train; do "$bin" check --data "$d"; done
     [ -f data/doom-train/plans.json ] || "$bin" plan --data data/doom-train --memory-need
     [ -f data/doom-val/plans.json ] || "$bin" plan --data data/doom-val
-    [ -f data/doom-test/plans.json ] || "$bin" plan --data data/doom-test ;;
+    [ -f data/doom-test/plans.json ] || "$bin" plan --data data/doom-test
+    [ -f data/doom-test-abca/plans.json ] || "$bin" plan --data data/doom-test-abca ;;
   autoencoder)
     [ -f "$run/init/cdit-baseline.pt" ] || ./scripts/model.sh recover --model fixtures/variants/baseline_25k --run "$run/init"
     mkdir -p "$run/base"

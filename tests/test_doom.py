@@ -146,6 +146,22 @@ def test_a_doom_suite_passes_the_checker_and_reads_like_any_suite(doom_suite):
         # Every walking step moves 0.216 m (motion::WALK_SPEED) within the teleport's rounding.
         steps = np.linalg.norm(np.diff(poses[:, :3, 3], axis=0), axis=1)
         walked = actions[1:, 0] == 1
+
+
+def test_an_abca_walk_comes_back_to_a_by_another_way(tmp_path):
+    out = tmp_path / "abca"
+    subprocess.run([sys.executable, "-m", "worldpack_doom", "suite", "--split", "test", "--maps", "MAP20", "--task", "abca",
+                    "--count", "1", "--ranges", "4", "--seed", "1", "--out", str(out)], cwd=ROOT / "doom", check=True, capture_output=True)
+    assert check(out).returncode == 0
+    entry = json.loads((out / "index.json").read_text())["trajectories"][0]
+    assert entry["task"] == "abca"
+    poses = np.load(out / entry["dir"] / "poses.npy")[:, :3, 3]
+    back, before = poses[entry["returning_point"]:], poses[:entry["returning_point"]]
+    # It ends within a metre of A, and the way back is not the way out: its
+    # middle stands at least a metre from every point walked before.
+    assert np.linalg.norm(back[-1] - poses[0]) < 1.0
+    middle = back[len(back) // 2]
+    assert np.linalg.norm(before - middle, axis=1).min() > 1.0
         assert np.all(np.abs(steps[walked] - 0.216) < 0.05) and np.all(steps[~walked] < 0.05)
 
 

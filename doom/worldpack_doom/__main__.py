@@ -1,4 +1,4 @@
-"""python -m worldpack_doom suite --split train|test --count N --out DIR"""
+"""python -m worldpack_doom suite --split train|test [--task aba|abca] --count N --out DIR"""
 
 from __future__ import annotations
 
@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 
 from .suite import TEST_MAPS, TRAIN_MAPS, write_suite
+from .walk import TASKS
 
 
 def main() -> None:
@@ -15,6 +16,8 @@ def main() -> None:
     s.add_argument("--split", choices=["train", "test"], required=True,
                    help=f"train: {','.join(TRAIN_MAPS)}; test (held out): {','.join(TEST_MAPS)}")
     s.add_argument("--maps", help="comma-separated maps instead of the split's own (must stay within the split)")
+    s.add_argument("--task", choices=sorted(TASKS), default="aba",
+                   help="aba: out to B and back the same way; abca: out to B, on to C, back to A another way")
     s.add_argument("--count", type=int, required=True, help="walks in all, spread over the maps")
     s.add_argument("--ranges", default="4,8,12", help="comma-separated ranges in metres (B is at least 0.8 range from A)")
     s.add_argument("--seed", type=int, default=0)
@@ -31,7 +34,7 @@ def main() -> None:
     ranges = [float(r) for r in a.ranges.split(",")]
     if any(r <= 0 for r in ranges):
         p.error("--ranges: every range must be above 0")
-    write_suite(a.out, a.split, maps, a.count, ranges, a.seed, workers=a.workers)
+    write_suite(a.out, a.split, maps, a.count, ranges, a.seed, workers=a.workers, task=a.task)
 
 
 if __name__ == "__main__":

@@ -13,7 +13,7 @@ import numpy as np
 from tqdm import tqdm
 
 from . import engine as E
-from .walk import TURN_STEP, WALK_STEP, Geometry, Plan, out_and_back, start_points
+from .walk import TASKS, TURN_STEP, WALK_STEP, Geometry, Plan, start_points
 
 SUITE_FORMAT = "worldpack-suite/1"
 TRAJECTORY_FORMAT = "worldpack-trajectory/1"
@@ -70,9 +70,9 @@ def write_trajectory(root: Path, name: str, arrays: dict, meta: dict) -> None:
 
 
 def write_map(out: Path, split: str, map_name: str, count: int, ranges_m: list[float], seed: int,
-              wad: str | None = None, progress=None) -> list[dict]:
-    """`count` walks on one map; the map's own random stream (seed, map) makes
-    them the same whatever else is written beside them."""
+              wad: str | None = None, progress=None, task: str = "aba") -> list[dict]:
+    """`count` walks of `task` (walk.TASKS) on one map; the map's own random
+    stream (seed, map) makes them the same whatever else is written beside them."""
     rng = np.random.default_rng([seed, int(map_name[3:]) if map_name[3:].isdigit() else hash(map_name) % 2**31])
     engine = E.Engine(map_name, wad=wad, seed=seed)
     entries = []
@@ -82,13 +82,13 @@ def write_map(out: Path, split: str, map_name: str, count: int, ranges_m: list[f
             if len(entries) == count:
                 break
             range_m = float(rng.choice(ranges_m))
-            plan = out_and_back(geom, start, angle, range_m * E.UNITS_PER_METRE, rng)
+            plan = TASKS[task](geom, start, angle, range_m * E.UNITS_PER_METRE, rng)
             if plan is None:
                 continue
             arrays = render(engine, plan)
-            name = f"{map_name.lower()}-r{int(range_m):02d}-{len(entries):03d}"
+            name = f"{map_name.lower()}-{'' if task == 'aba' else task + '-'}r{int(range_m):02d}-{len(entries):03d}"
             frames = len(plan.points)
-            meta = {"format": TRAJECTORY_FORMAT, "name": name, "split": split, "task": "aba", "range": int(range_m),
+            meta = {"format": TRAJECTORY_FORMAT, "name": name, "split": split, "task": task, "range": int(range_m),
                     "frames": frames, "returning_point": plan.returning_point,
                     "intrinsics": intrinsics(),
                     "world": {"kind": "doom", "wad": Path(wad or E.wad_path()).name, "map": map_name,
@@ -97,7 +97,7 @@ def write_map(out: Path, split: str, map_name: str, count: int, ranges_m: list[f
                               "world_axes": "x east, y up, z south (Doom map x, z, -y)"},
                     "motion": {"walk_step_m": WALK_STEP / E.UNITS_PER_METRE, "turn_step_deg": TURN_STEP}}
             write_trajectory(out, name, arrays, meta)
-            entries.append({"dir": name, "task": "aba", "range": int(range_m), "frames": frames,
+            entries.append({"dir": name, "task": task, "range": int(range_m), "frames": frames,
                             "returning_point": plan.returning_point, "map": map_name})
             if progress is not None:
                 progress.put(1)
@@ -111,9 +111,9 @@ def _write_map(job):
 
 
 def write_suite(out: Path, split: str, maps: list[str], count: int, ranges_m: list[float], seed: int,
-                wad: str | None = None, workers: int = 1) -> None:
-    """`count` walks spread evenly over `maps`, ranges drawn from `ranges_m`,
-    maps rendered `workers` at a time."""
+                wad: str | None = None, workers: int = 1, task: str = "aba") -> None:
+    """`count` walks of `task` spread evenly over `maps`, ranges drawn from
+    `ranges_m`, maps rendered `workers` at a time."""
     import multiprocessing as mp
 
     out.mkdir(parents=True, exist_ok=True)
@@ -121,7 +121,7 @@ def write_suite(out: Path, split: str, maps: list[str], count: int, ranges_m: li
     bar = tqdm(total=count, desc=f"doom {split}", unit="walk")
     with mp.Manager() as manager:
         progress = manager.Queue()
-        jobs = [(out, split, m, n, ranges_m, seed, wad, progress) for m, n in per_map.items() if n > 0]
+        jobs = [(out, split, m, n, ranges_m, seed, wad, progress, task) for m, n in per_map.items() if n > 0]
         with mp.Pool(max(1, workers)) as pool:
             pending = pool.map_async(_write_map, jobs)
             while not pending.ready():
@@ -134,6 +134,6 @@ def write_suite(out: Path, split: str, maps: list[str], count: int, ranges_m: li
     for (m, n), r in zip(((m, n) for m, n in per_map.items() if n > 0), results):
         if len(r) < n:
             print(f"{m}: {len(r)} of {n} walks (no more starting points with room)")
-    index = {"format": SUITE_FORMAT, "kind": "doom", "split": split, "seed": seed, "frame_size": [SIZE, SIZE],
+    index = {"format": SUITE_FORMAT, "kind": "doom", "split": split, "task": task, "seed": seed, "frame_size": [SIZE, SIZE],
              "total_frames": int(sum(e["frames"] for e in entries)), "maps": maps, "trajectories": entries}
     (out / "index.json").write_text(json.dumps(index, indent=1))

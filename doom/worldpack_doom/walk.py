@@ -1,7 +1,9 @@
-"""LoopNav-style out-and-back walks on a Doom map, planned on the map's
-geometry with the project's kinematic motion model, so every frame's action
-is exact: look around at A, walk to a B at least 0.8 range away, turn round,
-and come back along the same points in reverse.
+"""LoopNav-style walks on a Doom map, planned on the map's geometry with the
+project's kinematic motion model, so every frame's action is exact. Both
+tasks look around at A first. ABA walks to a B at least 0.8 range away,
+turns round and comes back along the same points in reverse; ABCA walks to
+B, on to a C a range from both, and back to A by a way it has not walked,
+so the way back sees A's surroundings from new places.
 
 Each step is what `motion::Kinematic` does with an action: turn by `yaw_deg`
 (positive turns right), then move WALK_STEP along the new heading when
@@ -157,6 +159,32 @@ def out_and_back(geom: Geometry, start: np.ndarray, start_angle: float, range_un
         plan.step(-previous_yaw, fwd, 2)
         previous_yaw = yaw
     return plan
+
+
+def loop_back(geom: Geometry, start: np.ndarray, start_angle: float, range_units: float,
+              rng: np.random.Generator, max_steps: int = 240) -> Plan | None:
+    """One ABCA walk from `start`: A, B and C the corners of a triangle with
+    sides of `range_units`; the way back is the walk from C to A. None when
+    B or C was not reached or the walk ended more than a metre from A."""
+    plan = Plan()
+    plan.add(start, start_angle, False, 0.0, 0)
+    for _ in range(int(360 / TURN_STEP)):                 # look around at A
+        plan.step(TURN_STEP, False, 0)
+    direction = rng.uniform(0.0, 360.0)
+    corners = [start + range_units * heading_vector(direction + s) for s in (0.0, rng.choice([-60.0, 60.0]))]
+    for goal in corners:
+        for yaw, fwd in wander(geom, plan.points[-1], plan.angles[-1], max_steps, rng, goal):
+            plan.step(yaw, fwd, 1)
+        if np.linalg.norm(plan.points[-1] - goal) > 0.2 * range_units:
+            return None
+    for yaw, fwd in wander(geom, plan.points[-1], plan.angles[-1], max_steps, rng, start):
+        plan.step(yaw, fwd, 2)
+    if 2 not in plan.phase or np.linalg.norm(plan.points[-1] - start) > UNITS_PER_METRE:
+        return None
+    return plan
+
+
+TASKS = {"aba": out_and_back, "abca": loop_back}
 
 
 def start_points(sectors, geom: Geometry, count: int, rng: np.random.Generator,

@@ -14,7 +14,7 @@ use crate::manifest::LayoutSpec;
 use crate::pack::{ContextFrame, pack, stack};
 use crate::sampler::Sampler;
 use crate::manifest::FUSION_INPUTS;
-use crate::warp::{WarpSource, Warped, coverage_grid, forward_warp_many, warped_image};
+use crate::warp::{WarpSource, Warped, coverage_grid, forward_warp_many, fused_reference, stands_at, warped_image};
 use crate::{GraphRole, Model};
 
 /// Interleaved RGB bytes as (3, n) planar values in [-1, 1].
@@ -104,7 +104,6 @@ impl Model {
         }
         let contexts: Vec<&[(String, Tensor)]> = packed.iter().map(|p| p.tensors.as_slice()).collect();
         let mut context = stack(&contexts);
-        // Each request's sources warped once: the warp input and a fusion head's reference share it.
         let mut warps = Vec::new();
         let warp_ms = match &manifest.denoiser.warp {
             Some(spec) => {
@@ -128,7 +127,7 @@ impl Model {
         let per = latent.data.len() / requests.len();
         let fused: Vec<usize> = (0..warps.len()).filter(|&j| warps[j].is_some()).collect();
         if manifest.fusion.is_some() && !fused.is_empty() {
-            images = self.fuse(images, requests, warps, &fused)?;
+            images = self.fuse(images, requests, &fused)?;
             if !self.sampled_latents {
                 // The memory keeps the frame shown: the blended ones re-encoded, the others as sampled.
                 let n = images.data.len() / requests.len();
@@ -151,28 +150,40 @@ impl Model {
     /// The fusion head over a batch of decoded `images`: each request's
     /// decoded frame blended with the fused reference of its warp sources
     /// (`warp::fused_reference`). A request without sources keeps its
-    /// decoded frame (it has no reference; the head is not asked): `with`
-    /// lists the requests that have sources, `warps` their warps.
-    fn fuse(&self, images: Tensor, requests: &[Request], mut warps: Vec<Option<Warped>>, with: &[usize]) -> Result<Tensor, ModelError> {
+    /// decoded frame (it has no reference; the head is not asked), and one
+    /// whose best source stands at its target's pose shows that source
+    /// (`warp::stands_at`: a static world seen again from where it was
+    /// observed). `with` lists the requests that have sources.
+    fn fuse(&self, images: Tensor, requests: &[Request], with: &[usize]) -> Result<Tensor, ModelError> {
         let (w, h) = (self.manifest().image.width, self.manifest().image.height);
         let n = w * h;
-        let (mut predicted, mut reference, mut landed) = (Vec::new(), Vec::new(), Vec::new());
+        let mut out = images;
+        let (mut blend, mut predicted, mut reference, mut landed) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
         for &j in with {
-            let warped = warps[j].take().expect("`with` lists the requests with a warp");
-            let (rgb, mask) = warped.into_reference(&requests[j].warp[0]);
+            let best = &requests[j].warp[0];
+            if stands_at(best.pose, requests[j].target_pose) {
+                for (o, v) in out.data[j * 3 * n..(j + 1) * 3 * n].iter_mut().zip(planar(best.rgb, n)) {
+                    *o = v;
+                }
+                continue;
+            }
+            let (rgb, mask) = fused_reference(requests[j].warp, requests[j].target_pose)?;
             // Clamped, as the frames the head was trained on were.
-            predicted.extend(images.data[j * 3 * n..(j + 1) * 3 * n].iter().map(|v| v.clamp(-1.0, 1.0)));
+            predicted.extend(out.data[j * 3 * n..(j + 1) * 3 * n].iter().map(|v| v.clamp(-1.0, 1.0)));
             reference.extend(planar(&rgb, n));
             landed.extend(mask.iter().map(|&m| m as u8 as f32));
+            blend.push(j);
         }
-        let b = with.len();
+        if blend.is_empty() {
+            return Ok(out);
+        }
+        let b = blend.len();
         let predicted = Tensor::new(vec![b, 3, h, w], predicted);
         let reference = Tensor::new(vec![b, 3, h, w], reference);
         let landed = Tensor::new(vec![b, 1, h, w], landed);
         let [p, r, l] = FUSION_INPUTS;
         let fused = self.run(GraphRole::Fusion, &[(p, &predicted), (r, &reference), (l, &landed)])?.remove(0);
-        let mut out = images;
-        for (i, &j) in with.iter().enumerate() {
+        for (i, &j) in blend.iter().enumerate() {
             for (o, v) in out.data[j * 3 * n..(j + 1) * 3 * n].iter_mut().zip(&fused.data[i * 3 * n..(i + 1) * 3 * n]) {
                 *o = v.clamp(-1.0, 1.0);
             }

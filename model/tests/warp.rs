@@ -181,6 +181,10 @@ fn a_fused_frame_does_not_depend_on_its_batch() {
     let again = model.encode(&shown).unwrap().data;
     let worst = again.iter().zip(&both[0].latent).map(|(a, b)| (a - b).abs()).fold(0f32, f32::max);
     assert!(worst < 0.05, "the stored latent is not the shown frame's: {worst}");
+    // A request whose best source stands at its target's pose shows that source exactly.
+    let revisit = Request { target_pose: &src[0], ..with };
+    let seen = model.predict(&policy.packing, &[revisit, without], &frame, &sampler).unwrap().frames.remove(0);
+    assert!(seen.rgb == first, "a view seen from where it was observed is not shown as observed");
     // With sampled latents kept, the same frame is shown, and its latent is the
     // one the request without a warp would keep: what the sampler made, not the blend.
     model.keep_sampled_latents(true);
