@@ -151,27 +151,47 @@ pub fn forward_warp_many(sources: &[WarpSource], dst: &Pose) -> Result<Warped, M
     warp_behind(sources, dst, 0.0)
 }
 
-/// [`forward_warp_many`] where a source after the first wins a pixel only
-/// when nearer by more than `margin` (a share of the depth): its depths are
-/// weighed as `1 / (1 - margin)` times farther than they are.
+/// [`forward_warp_many`] where a source takes a pixel an earlier (better)
+/// source landed on only when nearer by more than `margin`, a share of the
+/// depth; within one source the z-test is plain.
 fn warp_behind(sources: &[WarpSource], dst: &Pose, margin: f64) -> Result<Warped, ModelError> {
     let Some(first) = sources.first() else { return Err(ModelError::input("warp", "no frame to warp")) };
     let (w, h) = (first.intrinsics.width as usize, first.intrinsics.height as usize);
-    let mut key = vec![f64::INFINITY; w * h];
+    let mut zbuffer = ZBuffer { key: vec![f64::INFINITY; w * h], owner: vec![usize::MAX; w * h], margin };
     let mut out = Warped { rgb: vec![0; w * h * 3], mask: vec![false; w * h], depth: vec![0.0; w * h] };
     for (n, src) in sources.iter().enumerate() {
         let k = src.intrinsics;
         if (k.width as usize, k.height as usize) != (w, h) {
             return Err(ModelError::input("warp.intrinsics", format!("frames of {}x{} and {w}x{h} in one warp", k.width, k.height)));
         }
-        splat(src, dst, if n == 0 { 1.0 } else { 1.0 / (1.0 - margin) }, &mut key, &mut out)?;
+        splat(src, n, dst, &mut zbuffer, &mut out)?;
     }
     Ok(out)
 }
 
-/// One source into the shared z-buffer `key` and image `out`, its surfaces'
-/// depths multiplied by `weight` in the z-test.
-fn splat(src: &WarpSource, dst: &Pose, weight: f64, key: &mut [f64], out: &mut Warped) -> Result<(), ModelError> {
+/// The depth test of a warp of several sources: each pixel's key (depth, or
+/// a sky key) and the source that set it.
+struct ZBuffer {
+    key: Vec<f64>,
+    owner: Vec<usize>,
+    margin: f64,
+}
+
+impl ZBuffer {
+    /// Whether source `n` at `key` takes pixel `j`; it does when it wins.
+    fn take(&mut self, j: usize, key: f64, n: usize) -> bool {
+        let other = self.owner[j] != n && self.owner[j] != usize::MAX;
+        let wins = key < if other { self.key[j] * (1.0 - self.margin) } else { self.key[j] };
+        if wins {
+            self.key[j] = key;
+            self.owner[j] = n;
+        }
+        wins
+    }
+}
+
+/// Source number `n` into the shared z-buffer and image `out`.
+fn splat(src: &WarpSource, n: usize, dst: &Pose, zbuffer: &mut ZBuffer, out: &mut Warped) -> Result<(), ModelError> {
     let k = src.intrinsics;
     let (w, h) = (k.width as usize, k.height as usize);
     if src.rgb.len() != w * h * 3 {
@@ -204,9 +224,8 @@ fn splat(src: &WarpSource, dst: &Pose, weight: f64, key: &mut [f64], out: &mut W
                 continue;
             }
             let j = y as usize * w + x as usize;
-            let depth_key = if sky { SKY_KEY + i as f64 } else { q.z * weight };
-            if depth_key < key[j] {
-                key[j] = depth_key;
+            let depth_key = if sky { SKY_KEY + i as f64 } else { q.z };
+            if zbuffer.take(j, depth_key, n) {
                 out.rgb[3 * j..3 * j + 3].copy_from_slice(&src.rgb[3 * i..3 * i + 3]);
                 out.mask[j] = true;
                 out.depth[j] = if sky { f64::INFINITY } else { q.z };
