@@ -3,15 +3,15 @@
 # the model family trained on it in the paper's order, rollouts on maps never
 # trained on. Each stage resumes or reuses what is done; run them in order,
 # in the background on one thread (THREADS) while you work on the other core.
-#   ./scripts/doom.sh data                 # data/doom-{train,val,test,test-abca}: 400 / 16 / 48 / 48 walks, checked and planned
+#   ./scripts/doom.sh data                 # data/doom-{train,train-abca,val,test,test-abca}: 400 / 120 / 16 / 48 / 48 walks, checked and planned
 #   ./scripts/doom.sh autoencoder          # the voxel autoencoder fine-tuned on Doom frames, then the latent cache
 #   ./scripts/doom.sh baseline             # the 4-frame baseline: baseline_25k fine-tuned on Doom (STEPS, MINUTES)
 #   ./scripts/doom.sh worldpack            # WorldPack with the warp input: worldpack_25k fine-tuned on Doom (STEPS, MINUTES)
 # The voxel pair is in the paper's order (worldpack_25k is a fine-tune of
 # baseline_25k); on Doom each is fine-tuned for the same steps, so the two can
 # train at once, one core each.
-#   ./scripts/doom.sh fusion               # its fusion head: the geometry model
-#   ./scripts/doom.sh eval                 # the held-out maps: every row with paired intervals
+#   ./scripts/doom.sh fusion               # its fusion head on ABA and ABCA training walks: the geometry model
+#   ./scripts/doom.sh eval                 # the held-out maps: every row with paired intervals (SUITE: data/doom-test)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 threads="${THREADS:-1}"
@@ -30,7 +30,8 @@ case "${1:-}" in
     [ -f data/doom-test-abca/index.json ] || doom suite --split test --task abca --count 48 --seed 4 --workers "$workers" --out ../data/doom-test-abca
     [ -f data/doom-val/index.json ] || doom suite --split train --count 16 --seed 3 --workers "$workers" --out ../data/doom-val
     [ -f data/doom-train/index.json ] || doom suite --split train --count 400 --seed 1 --workers "$workers" --out ../data/doom-train
-    for d in data/doom-test data/doom-test-abca data/doom-val data/doom-train; do "$bin" check --data "$d"; done
+    [ -f data/doom-train-abca/index.json ] || doom suite --split train --task abca --count 120 --seed 5 --workers "$workers" --out ../data/doom-train-abca
+    for d in data/doom-test data/doom-test-abca data/doom-val data/doom-train data/doom-train-abca; do "$bin" check --data "$d"; done
     [ -f data/doom-train/plans.json ] || "$bin" plan --data data/doom-train --memory-need
     [ -f data/doom-val/plans.json ] || "$bin" plan --data data/doom-val
     [ -f data/doom-test/plans.json ] || "$bin" plan --data data/doom-test
@@ -69,18 +70,22 @@ PY
     ./scripts/model.sh export --run "$w" --policy worldpack --layouts worldpack --data data/doom-val \
         --out "$w/model/worldpack" --half --threads "$threads" ;;
   fusion)
-    m="$run/worldpack/model/worldpack"
+    m="${MODEL:-$run/worldpack/model/worldpack}"
     [ -f "$run/fusion-data/truth.npy" ] || "$bin" fusion-data --suite data/doom-train --model "$m" --stride 2 \
-        --limit "${LIMIT:-120}" --threads "$threads" --out "$run/fusion-data"
-    ./scripts/model.sh fusion-train --data "$run/fusion-data" --run "$run/fusion" --steps "${STEPS:-2000}" --threads "$threads" "${minutes[@]}"
+        --limit "${LIMIT:-240}" --threads "$threads" --out "$run/fusion-data"
+    [ -f "$run/fusion-data-abca/truth.npy" ] || "$bin" fusion-data --suite data/doom-train-abca --model "$m" --stride 2 \
+        --threads "$threads" --out "$run/fusion-data-abca"
+    ./scripts/model.sh fusion-train --data "$run/fusion-data" "$run/fusion-data-abca" --run "$run/fusion" \
+        --steps "${STEPS:-3000}" --threads "$threads" "${minutes[@]}"
     ./scripts/model.sh fusion-export --run "$run/fusion" --model "$m" --out "$run/geometry_fused" --data "$run/fusion-data" ;;
   eval)
     mkdir -p "$run/models"
     ln -sfn "$PWD/$run/base/model/baseline" "$run/models/baseline"
-    "$bin" eval --suite data/doom-test --models "$run/models" --policies baseline --threads "${EVAL_THREADS:-2}" \
+    suite="${SUITE:-data/doom-test}"
+    "$bin" eval --suite "$suite" --models "$run/models" --policies baseline --threads "${EVAL_THREADS:-2}" \
         --extra worldpack="$run/worldpack/model/worldpack" \
         --extra geometry_fused="$run/geometry_fused" --covisible geometry_fused \
         --against "${AGAINST:-baseline}" --strip geometry_fused_covisible,worldpack,baseline,reproject_fused \
-        --out "$run/eval-test" "${@:2}" ;;
+        --out "$run/eval-$(basename "$suite")" "${@:2}" ;;
   *) echo "usage: $0 data | autoencoder | baseline | worldpack | fusion | eval" >&2; exit 2 ;;
 esac

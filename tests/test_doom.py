@@ -146,6 +146,7 @@ def test_a_doom_suite_passes_the_checker_and_reads_like_any_suite(doom_suite):
         # Every walking step moves 0.216 m (motion::WALK_SPEED) within the teleport's rounding.
         steps = np.linalg.norm(np.diff(poses[:, :3, 3], axis=0), axis=1)
         walked = actions[1:, 0] == 1
+        assert np.all(np.abs(steps[walked] - 0.216) < 0.05) and np.all(steps[~walked] < 0.05)
 
 
 def test_an_abca_walk_comes_back_to_a_by_another_way(tmp_path):
@@ -162,7 +163,6 @@ def test_an_abca_walk_comes_back_to_a_by_another_way(tmp_path):
     assert np.linalg.norm(back[-1] - poses[0]) < 1.0
     middle = back[len(back) // 2]
     assert np.linalg.norm(before - middle, axis=1).min() > 1.0
-        assert np.all(np.abs(steps[walked] - 0.216) < 0.05) and np.all(steps[~walked] < 0.05)
 
 
 @pytest.mark.parametrize("breakage, names", [
