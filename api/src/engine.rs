@@ -210,7 +210,7 @@ impl Engine {
         if self.overlay_warp && !warp.is_empty() {
             // What was seen stays as it was seen; the model fills what no source shows.
             let t = Instant::now();
-            predicted.rgb = model::warp::forward_warp_many(&warp, &pose)?.overlay(predicted.rgb);
+            predicted.rgb = model::warp::fused_warp(&warp, &pose)?.overlay(predicted.rgb);
             let img = &m.manifest().image;
             predicted.latent = self.latent_of(&predicted.rgb, img.width as u32, img.height as u32, s.intrinsics(), "overlay")?;
             warp_ms += ms(t);

@@ -10,7 +10,7 @@ use memory::covisibility::CoVisibility;
 use memory::{ContextPlan, FrameMemory, Intrinsics, MemoryFrame, Policy};
 use model::generate::frame_to_tensor;
 use model::pack::ContextFrame;
-use model::warp::{Warped, forward_warp_many};
+use model::warp::Warped;
 use model::{Model, ModelError, Request, Sampler, Tensor, WarpSource};
 use serde::Serialize;
 
@@ -209,7 +209,7 @@ pub fn fused_warp(traj: &Trajectory, plan: &ContextPlan, t: usize) -> Warped {
         let n = traj.intrinsics.width as usize * traj.intrinsics.height as usize;
         return Warped { rgb: vec![0; 3 * n], mask: vec![false; n], depth: vec![0.0; n] };
     }
-    forward_warp_many(&sources, &traj.poses[t]).expect("suite frames match their intrinsics")
+    model::warp::fused_warp(&sources, &traj.poses[t]).expect("suite frames match their intrinsics")
 }
 
 /// A side of the validity mask is scored only when it holds at least this

@@ -118,7 +118,14 @@ pub const REFERENCE_MARGIN: f64 = 0.15;
 /// fusion head blends with the model's frame. Returns the image and where the
 /// warp itself landed (before filling).
 pub fn fused_reference(sources: &[WarpSource], dst: &Pose) -> Result<(Vec<u8>, Vec<bool>), ModelError> {
-    Ok(warp_behind(sources, dst, REFERENCE_MARGIN)?.into_reference(&sources[0]))
+    Ok(fused_warp(sources, dst)?.into_reference(&sources[0]))
+}
+
+/// `sources` (best first) warped into `dst` behind one z-buffer that favours
+/// the best by [`REFERENCE_MARGIN`]: what the fused reference and the
+/// composite (the warp where it lands, a model's frame in its holes) show.
+pub fn fused_warp(sources: &[WarpSource], dst: &Pose) -> Result<Warped, ModelError> {
+    warp_behind(sources, dst, REFERENCE_MARGIN)
 }
 
 /// Whether `src` stands at `dst`'s pose (within 1 mm and 0.01°): its warp
