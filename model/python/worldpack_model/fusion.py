@@ -1,8 +1,10 @@
 """The fusion head of a geometry model: a small convolutional net in pixel
 space that takes the decoded frame, the fused reference of the model's warp
-sources (the stored frames warped into the target view behind one z-buffer,
-cracks filled, what is still empty the best frame's own pixel) and where the
-warp landed, and returns the frame the model shows.
+sources (the stored frames warped into the target view, best first, a later
+one taking a pixel only when clearly nearer; cracks filled, what is still
+empty the best frame's own pixel: `model::warp::fused_reference`, made by
+`worldpack fusion-data`) and where the warp landed, and returns the frame the
+model shows.
 
 It learns, per pixel, how far to trust the warp against the model: the warp
 is exact where it landed on the right surface, the decoder is blurred by the
