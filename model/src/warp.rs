@@ -101,19 +101,18 @@ impl Warped {
 /// resolution leaves one- and two-pixel cracks, which two rounds close.
 pub const FILL_ROUNDS: usize = 2;
 
-/// In [`fused_reference`], another source covers a pixel the best one landed
+/// In [`fused_warp`], a source takes a pixel an earlier (better) one landed
 /// on only when it is nearer by more than this share of the depth. The same
 /// surface seen from two frames lands at nearly the same depth, and a plain
 /// z-buffer then picks between them by rounding: where depth is coarse (Doom's
-/// 8-bit buffer has 22 cm steps) the farther-away sources win about half the
-/// surface, and the best frame's view is lost even where it is exact. On the
-/// held-out Doom walks the fused warp went from 25.64 to 28.76 dB (0.05: 26.65,
-/// 0.3: 28.77); a true occluder is nearer by far more than 15%.
+/// 8-bit buffer has 22 cm steps) the worse views win part of the surface, and
+/// the best frame's view is spoilt even where it is exact. On the held-out
+/// Doom walks the fused warp went from 25.64 to 28.76 dB (0.05: 26.65, 0.3:
+/// 28.77); a true occluder is nearer by far more than 15%.
 pub const REFERENCE_MARGIN: f64 = 0.15;
 
-/// The fused reference: `sources` (best first) warped into `dst` behind one
-/// z-buffer that favours the best by [`REFERENCE_MARGIN`], cracks filled from
-/// their neighbours over [`FILL_ROUNDS`] rounds, what is still empty the best
+/// The fused reference: [`fused_warp`] with cracks filled from their
+/// neighbours over [`FILL_ROUNDS`] rounds, what is still empty the best
 /// frame's own pixel. The probe's strongest non-learned row, and what a
 /// fusion head blends with the model's frame. Returns the image and where the
 /// warp itself landed (before filling).
@@ -122,7 +121,7 @@ pub fn fused_reference(sources: &[WarpSource], dst: &Pose) -> Result<(Vec<u8>, V
 }
 
 /// `sources` (best first) warped into `dst` behind one z-buffer that favours
-/// the best by [`REFERENCE_MARGIN`]: what the fused reference and the
+/// earlier sources by [`REFERENCE_MARGIN`]: what the fused reference and the
 /// composite (the warp where it lands, a model's frame in its holes) show.
 pub fn fused_warp(sources: &[WarpSource], dst: &Pose) -> Result<Warped, ModelError> {
     warp_behind(sources, dst, REFERENCE_MARGIN)
