@@ -133,13 +133,19 @@ def wander(geom: Geometry, start: np.ndarray, angle: float, steps: int, rng: np.
     return out
 
 
+def look_around(start: np.ndarray, start_angle: float) -> Plan:
+    """The start of every walk: a full turn in place at A."""
+    plan = Plan()
+    plan.add(start, start_angle, False, 0.0, 0)
+    for _ in range(int(360 / TURN_STEP)):
+        plan.step(TURN_STEP, False, 0)
+    return plan
+
+
 def out_and_back(geom: Geometry, start: np.ndarray, start_angle: float, range_units: float,
                  rng: np.random.Generator, max_steps: int = 240) -> Plan | None:
     """One ABA walk from `start`, or None when no B at least 0.8 range away was reached."""
-    plan = Plan()
-    plan.add(start, start_angle, False, 0.0, 0)
-    for _ in range(int(360 / TURN_STEP)):                 # look around at A
-        plan.step(TURN_STEP, False, 0)
+    plan = look_around(start, start_angle)
     direction = rng.uniform(0.0, 360.0)
     goal = start + range_units * heading_vector(direction)
     for yaw, fwd in wander(geom, start, plan.angles[-1], max_steps, rng, goal):
@@ -166,10 +172,7 @@ def loop_back(geom: Geometry, start: np.ndarray, start_angle: float, range_units
     """One ABCA walk from `start`: A, B and C the corners of a triangle with
     sides of `range_units`; the way back is the walk from C to A. None when
     B or C was not reached or the walk ended more than a metre from A."""
-    plan = Plan()
-    plan.add(start, start_angle, False, 0.0, 0)
-    for _ in range(int(360 / TURN_STEP)):                 # look around at A
-        plan.step(TURN_STEP, False, 0)
+    plan = look_around(start, start_angle)
     direction = rng.uniform(0.0, 360.0)
     corners = [start + range_units * heading_vector(direction + s) for s in (0.0, rng.choice([-60.0, 60.0]))]
     for goal in corners:
