@@ -176,7 +176,8 @@ fn warp_behind(sources: &[WarpSource], dst: &Pose, margin: f64) -> Result<Warped
 }
 
 /// The depth test of a warp of several sources: each pixel's key (depth, or
-/// a sky key) and the source that set it.
+/// a sky key; infinity while empty, so any source takes an empty pixel) and
+/// the source that set it.
 struct ZBuffer {
     key: Vec<f64>,
     owner: Vec<usize>,
@@ -186,8 +187,7 @@ struct ZBuffer {
 impl ZBuffer {
     /// Whether source `n` at `key` takes pixel `j`; it does when it wins.
     fn take(&mut self, j: usize, key: f64, n: usize) -> bool {
-        let other = self.owner[j] != n && self.owner[j] != usize::MAX;
-        let wins = key < if other { self.key[j] * (1.0 - self.margin) } else { self.key[j] };
+        let wins = key < if self.owner[j] != n { self.key[j] * (1.0 - self.margin) } else { self.key[j] };
         if wins {
             self.key[j] = key;
             self.owner[j] = n;
