@@ -3,7 +3,7 @@
 # model's 10-step DDIM distilled into GRID's steps (distill.py), keeping the
 # teacher's fusion head. Resumable: each stage continues or reuses what is done.
 #   ./scripts/distill.sh data      # data/train120 with plans and memory need (as recipe.sh prepare makes it)
-#   ./scripts/distill.sh train     # GRID (999,499), TEACHER_STEPS (5 per segment), STEPS, MINUTES, BATCH, DEVICE
+#   ./scripts/distill.sh train     # GRID (999,499), TEACHER_STEPS (5 per segment), STEPS, MINUTES, BATCH, DEVICE, EDGE
 #   ./scripts/distill.sh export    # -> fixtures/variants/worldpack_geometry_fused_<N>step
 # RUN (runs/distill/<N>step) holds the run; PY runs `python -m worldpack_model`
 # (default ./scripts/model.sh, which sets up .venv-train).
@@ -26,7 +26,7 @@ case "${1:-}" in
     "${py[@]}" encode --data data/train120 --run "$run" --device "${DEVICE:-auto}"
     "${py[@]}" distill --data data/train120 --run "$run" --grid "$grid" --teacher-steps "${TEACHER_STEPS:-5}" \
         --steps "${STEPS:-20000}" --batch "${BATCH:-64}" --device "${DEVICE:-auto}" --threads "${THREADS:-1}" \
-        ${LR:+--lr "$LR"} ${MINUTES:+--minutes "$MINUTES"} ;;
+        ${LR:+--lr "$LR"} ${MINUTES:+--minutes "$MINUTES"} ${EDGE:+--edge-weight "$EDGE"} ;;
   export)
     "${py[@]}" export --run "$run" --policy worldpack --distilled "$n" --layouts worldpack --data data/val --out "$out" \
         --half --fusion-from "$teacher" --threads "${THREADS:-1}" ;;

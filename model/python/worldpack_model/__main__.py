@@ -105,6 +105,8 @@ def main() -> None:
     p.add_argument("--lr", type=float, default=1e-4)
     p.add_argument("--ema", type=float, default=0.999)
     p.add_argument("--minutes", type=float)
+    p.add_argument("--edge-weight", type=float, default=0.0,
+                   help="weight of the gradient difference loss on decoded frames (Mathieu et al. 2016); 0: latent MSE only")
 
     p = sub.add_parser("paper-scale", help="a model folder at the paper's shapes (224x224 frames, 4x28x28 latents, "
                        "844 vs 784 context tokens) with random seeded weights: --size paper (CDiT-B/2, SD-VAE-shaped "
@@ -183,7 +185,8 @@ def main() -> None:
     elif a.stage == "distill":
         from . import distill
 
-        distill.distill(a.data, a.run, a.policy, a.grid, a.teacher_steps, a.steps, a.batch, a.lr, a.ema, a.device, a.minutes)
+        distill.distill(a.data, a.run, a.policy, a.grid, a.teacher_steps, a.steps, a.batch, a.lr, a.ema, a.device, a.minutes,
+                        a.edge_weight)
 
 
 if __name__ == "__main__":

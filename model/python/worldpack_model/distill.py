@@ -17,7 +17,14 @@ signal is 0.6% of the state, and an epsilon-predicting student's clean-frame
 estimate would amplify its error 158-fold there. Its exported graph turns v
 back into epsilon (`EpsFromV`), so the Rust sampler and every backend run it
 unchanged; the manifest's `diffusion.distilled` names the grid it must be
-sampled on."""
+sampled on.
+
+`edge_weight` > 0 adds the gradient difference loss of Mathieu, Couprie &
+LeCun (2016, "Deep multi-scale video prediction beyond mean square error"),
+eq. 5 with alpha 1, on the frozen decoder's images of the student's and the
+target's clean frames: whatever a one-step student cannot place exactly, the
+latent MSE alone spreads into blur; this term asks for edges as strong as the
+teacher's where they are."""
 
 from __future__ import annotations
 
@@ -79,6 +86,13 @@ def segment_times(start: torch.Tensor, end: torch.Tensor, steps: int) -> list[to
     return out
 
 
+def gradient_difference(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """Mean |(|grad a|) - (|grad b|)| over both image axes (Mathieu et al. 2016, eq. 5, alpha 1)."""
+    dy = lambda x: (x[..., 1:, :] - x[..., :-1, :]).abs()
+    dx = lambda x: (x[..., :, 1:] - x[..., :, :-1]).abs()
+    return (dy(a) - dy(b)).abs().mean() + (dx(a) - dx(b)).abs().mean()
+
+
 @torch.no_grad()
 def teacher_segment(eps_fn, alpha_bar: torch.Tensor, x: torch.Tensor, start: torch.Tensor, end: torch.Tensor,
                     steps: int) -> torch.Tensor:
@@ -94,7 +108,7 @@ def teacher_segment(eps_fn, alpha_bar: torch.Tensor, x: torch.Tensor, start: tor
 
 
 def distill(data: Path, run: Path, policy: str, grid_text: str, teacher_steps: int, steps: int, batch: int, lr: float,
-            ema_decay: float, device: str, minutes: float | None) -> None:
+            ema_decay: float, device: str, minutes: float | None, edge_weight: float = 0.0) -> None:
     cfg = run_config(run)
     dev = pick_device(device)
     grid = parse_grid(grid_text, cfg.diffusion.timesteps)
@@ -130,7 +144,7 @@ def distill(data: Path, run: Path, policy: str, grid_text: str, teacher_steps: i
 
     layout = LAYOUTS[policy]
     source = wdata.PlannedLatents(data, run / "latents", policy, layout, memory_focus, warp=cfg.cdit.warp)
-    autoencoder = load_autoencoder(run, dev).requires_grad_(False) if cfg.cdit.warp else None
+    autoencoder = load_autoencoder(run, dev).requires_grad_(False) if cfg.cdit.warp or edge_weight > 0 else None
     alpha_bar = torch.tensor(Schedule(cfg.diffusion).alphas_cumprod, dtype=torch.float32, device=dev)
     augment = ContextAugmenter(recipe, source, layout.rates, alpha_bar, cfg.cdit.context_noise, 3000 + step, dev)
     rng = np.random.default_rng(4000 + step)
@@ -140,6 +154,8 @@ def distill(data: Path, run: Path, policy: str, grid_text: str, teacher_steps: i
     record = {"method": "progressive distillation target (Salimans & Ho 2022), one round", "timesteps": grid,
               "teacher": str(teacher_path), "teacher_steps": state["step"], "teacher_steps_per_segment": teacher_steps,
               "prediction": "v (exported as epsilon)"}
+    if edge_weight > 0:
+        record["edge_weight"] = edge_weight
     checkpoint = lambda: save(ckpt, model=student.state_dict(), ema=ema.state_dict(), opt=opt.state_dict(), step=step,
                               policy=policy, memory_focus=memory_focus, recipe=recipe.to_json(), distilled=record,
                               init_from=str(teacher_path), plans_query=source.plans_query,
@@ -150,7 +166,7 @@ def distill(data: Path, run: Path, policy: str, grid_text: str, teacher_steps: i
     while step < steps and time.time() < deadline:
         drawn = source.batch(rng, batch)
         x0, action, rel_time, groups = augment(drawn, teacher)
-        warp_in = batch_warp(source, drawn, autoencoder, dev) if autoencoder is not None else None
+        warp_in = batch_warp(source, drawn, autoencoder, dev) if cfg.cdit.warp else None
         k = torch.randint(0, len(grid), (batch,), device=dev)
         t, end = starts[k], ends[k]
         ab = alpha_bar[t].view(-1, 1, 1, 1)
@@ -164,6 +180,10 @@ def distill(data: Path, run: Path, policy: str, grid_text: str, teacher_steps: i
         v = student(x_t, t.float(), action, rel_time, groups, rates=layout.rates, warp=warp_in)
         x0_student = ab.sqrt() * x_t - (1 - ab).sqrt() * v
         loss = F.mse_loss(x0_student, x0_target)
+        if edge_weight > 0:
+            with torch.no_grad():
+                image_target = autoencoder.decoder(x0_target / autoencoder.scale)
+            loss = loss + edge_weight * gradient_difference(autoencoder.decoder(x0_student / autoencoder.scale), image_target)
         optimise(student, ema, opt, loss, ema_decay)
         step += 1
         seen += batch
