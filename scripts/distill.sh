@@ -1,10 +1,12 @@
 #!/usr/bin/env bash
-# The served model's few-step student (docs/speed.md): the fused geometry
-# model's 10-step DDIM distilled into GRID's steps (distill.py), keeping the
-# teacher's fusion head. Resumable: each stage continues or reuses what is done.
+# The served model's few-step student (docs/model.md): the fused geometry
+# model's 10-step DDIM distilled into GRID's steps (distill.py), then given a
+# fusion head of its own. Resumable: each stage continues or reuses what is done.
 #   ./scripts/distill.sh data      # data/train120 with plans and memory need (as recipe.sh prepare makes it)
 #   ./scripts/distill.sh train     # GRID (999,499), TEACHER_STEPS (5 per segment), STEPS, MINUTES, BATCH, DEVICE, EDGE
-#   ./scripts/distill.sh export    # -> fixtures/variants/worldpack_geometry_fused_<N>step
+#   ./scripts/distill.sh export    # -> fixtures/variants/worldpack_geometry_fused_<N>step, with the teacher's fusion head
+#   ./scripts/distill.sh head      # replaces that head with the student's own: trained on its predictions,
+#                                  # MSE + HEAD_EDGE (1) x the gradient difference loss, HEAD_STEPS (4000)
 # RUN (runs/distill/<N>step) holds the run; PY runs `python -m worldpack_model`
 # (default ./scripts/model.sh, which sets up .venv-train).
 set -euo pipefail
@@ -30,5 +32,14 @@ case "${1:-}" in
   export)
     "${py[@]}" export --run "$run" --policy worldpack --distilled "$n" --layouts worldpack --data data/val --out "$out" \
         --half --fusion-from "$teacher" --threads "${THREADS:-1}" ;;
-  *) sed -n '2,10p' "$0"; exit 2 ;;
+  head)
+    bare="$run/model-without-head"
+    [ -f "$bare/manifest.json" ] || "${py[@]}" export --run "$run" --policy worldpack --distilled "$n" --layouts worldpack \
+        --data data/val --out "$bare" --half --threads "${THREADS:-1}"
+    [ -f "$run/fusion-data/truth.npy" ] || "$bin" fusion-data --suite "${HEAD_DATA:-data/train120}" --model "$bare" \
+        --method ddim --steps "$n" --out "$run/fusion-data"
+    "${py[@]}" fusion-train --data "$run/fusion-data" --run "$run/head" --steps "${HEAD_STEPS:-4000}" \
+        --edge-weight "${HEAD_EDGE:-1}" --threads "${THREADS:-1}"
+    "${py[@]}" fusion-export --run "$run/head" --model "$bare" --out "$out" --data "$run/fusion-data" ;;
+  *) sed -n '2,12p' "$0"; exit 2 ;;
 esac

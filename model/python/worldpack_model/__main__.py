@@ -132,6 +132,8 @@ def main() -> None:
     p.add_argument("--batch", type=int, default=32)
     p.add_argument("--lr", type=float, default=2e-3)
     p.add_argument("--width", type=int, default=24, help="channels of each convolution")
+    p.add_argument("--edge-weight", type=float, default=0.0,
+                   help="weight of the gradient difference loss against the truth (Mathieu et al. 2016); 0: MSE only")
     p.add_argument("--minutes", type=float, help="stop (and checkpoint) after this much wall time")
     p.add_argument("--threads", type=int, default=0, help="torch CPU threads (0: torch's default)")
 
@@ -159,7 +161,7 @@ def main() -> None:
     elif a.stage == "fusion-train":
         from . import fusion
 
-        fusion.train(a.data, a.run, a.steps, a.batch, a.lr, a.minutes, a.width)
+        fusion.train(a.data, a.run, a.steps, a.batch, a.lr, a.minutes, a.width, edge_weight=a.edge_weight)
     elif a.stage == "fusion-export":
         from . import fusion
 

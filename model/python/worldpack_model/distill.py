@@ -43,6 +43,7 @@ from . import data as wdata
 from .cdit import CDiT
 from .config import LAYOUTS
 from .diffusion import Schedule
+from .losses import gradient_difference
 from .recipe import ContextAugmenter, Recipe
 from .train import load_autoencoder, log, optimise, pick_device, run_config, save
 from .warp import batch_warp
@@ -84,13 +85,6 @@ def segment_times(start: torch.Tensor, end: torch.Tensor, steps: int) -> list[to
         frac = torch.where(clean, j / max(steps - 1, 1), j / steps)
         out.append(torch.round(s - frac * (s - last)).long())
     return out
-
-
-def gradient_difference(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
-    """Mean |(|grad a|) - (|grad b|)| over both image axes (Mathieu et al. 2016, eq. 5, alpha 1)."""
-    dy = lambda x: (x[..., 1:, :] - x[..., :-1, :]).abs()
-    dx = lambda x: (x[..., :, 1:] - x[..., :, :-1]).abs()
-    return (dy(a) - dy(b)).abs().mean() + (dx(a) - dx(b)).abs().mean()
 
 
 @torch.no_grad()

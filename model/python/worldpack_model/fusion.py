@@ -34,6 +34,7 @@ import torch
 from torch import nn
 import torch.nn.functional as F
 
+from .losses import gradient_difference
 from .train import resume
 
 INPUTS = ("predicted", "reference", "landed")  # the order model/src/manifest.rs expects
@@ -75,11 +76,14 @@ def psnr_db(a: torch.Tensor, b: torch.Tensor) -> float:
     return 10 * math.log10(255**2 / max(mse, 1e-12))
 
 
-def train(data: list[Path], run: Path, steps: int, batch: int, lr: float, minutes: float | None, width: int, seed: int = 0) -> None:
+def train(data: list[Path], run: Path, steps: int, batch: int, lr: float, minutes: float | None, width: int, seed: int = 0,
+          edge_weight: float = 0.0) -> None:
     """Trains the head on `data` (`worldpack fusion-data` folders); the last
     tenth of each folder's examples (its suite's last trajectories) is held
     out and scored against the decoder's frame, the reference and their
-    average. Resumes from run/fusion.pt."""
+    average. Resumes from run/fusion.pt. `edge_weight` > 0 adds the gradient
+    difference loss against the truth (losses.py), which keeps the warp's
+    edges where an MSE-only head would blend them away."""
     run.mkdir(parents=True, exist_ok=True)
     folders = [load_examples(d) for d in data]
     fit = [[x[: len(x) - max(1, len(x) // 10)] for x in f] for f in folders]
@@ -92,7 +96,8 @@ def train(data: list[Path], run: Path, steps: int, batch: int, lr: float, minute
     opt = torch.optim.Adam(head.parameters(), lr=lr)
     ckpt = run / "fusion.pt"
     step = resume(ckpt, head, opt, "the fusion head", key="head")
-    config = {"width": width, "dilations": list(head.dilations), "data": [str(d) for d in data], "examples": n, "held_out": n - cut}
+    config = {"width": width, "dilations": list(head.dilations), "data": [str(d) for d in data], "examples": n, "held_out": n - cut,
+              "edge_weight": edge_weight}
 
     def save():
         torch.save({"head": head.state_dict(), "opt": opt.state_dict(), "step": step, "config": config}, ckpt)
@@ -114,7 +119,10 @@ def train(data: list[Path], run: Path, steps: int, batch: int, lr: float, minute
             p, r, m, t = (x.flip(-1) for x in (p, r, m, t))
         for g in opt.param_groups:
             g["lr"] = lr * 0.5 * (1 + math.cos(math.pi * step / steps))
-        loss = F.mse_loss(head(p, r, m), t)
+        out = head(p, r, m)
+        loss = F.mse_loss(out, t)
+        if edge_weight > 0:
+            loss = loss + edge_weight * gradient_difference(out, t)
         opt.zero_grad()
         loss.backward()
         opt.step()
@@ -187,7 +195,9 @@ def export(run: Path, model: Path, out: Path, data: Path | None = None) -> None:
         "architecture": f"{len(cfg['dilations'])} dilated 3x3 convolutions of width {cfg['width']} (dilations {cfg['dilations']}); "
                         f"output: a per-pixel convex blend of reference and decoded frame plus {CORRECTION} tanh(correction)",
         "parameters": sum(p.numel() for p in head.parameters()),
-        "trained": {"steps": state["step"], "examples": cfg["examples"], "data": cfg["data"]},
+        "trained": {"steps": state["step"], "examples": cfg["examples"], "data": cfg["data"],
+                    "loss": "MSE" + (f" + {cfg['edge_weight']} x gradient difference (Mathieu et al. 2016)"
+                                     if cfg.get("edge_weight") else "")},
     }
     manifest["reference"]["graphs"]["fusion"] = "reference/fusion"
     (out / "manifest.json").write_text(json.dumps(manifest, indent=1))
