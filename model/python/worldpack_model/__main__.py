@@ -134,6 +134,8 @@ def main() -> None:
     p.add_argument("--width", type=int, default=24, help="channels of each convolution")
     p.add_argument("--edge-weight", type=float, default=0.0,
                    help="weight of the gradient difference loss against the truth (Mathieu et al. 2016); 0: MSE only")
+    p.add_argument("--edge-landed", type=float, default=1.0,
+                   help="that loss's per-pixel weight where the warp landed (1 in its holes; 0: holes only)")
     p.add_argument("--minutes", type=float, help="stop (and checkpoint) after this much wall time")
     p.add_argument("--threads", type=int, default=0, help="torch CPU threads (0: torch's default)")
 
@@ -161,7 +163,8 @@ def main() -> None:
     elif a.stage == "fusion-train":
         from . import fusion
 
-        fusion.train(a.data, a.run, a.steps, a.batch, a.lr, a.minutes, a.width, edge_weight=a.edge_weight)
+        fusion.train(a.data, a.run, a.steps, a.batch, a.lr, a.minutes, a.width, edge_weight=a.edge_weight,
+                     edge_landed=a.edge_landed)
     elif a.stage == "fusion-export":
         from . import fusion
 

@@ -77,13 +77,14 @@ def psnr_db(a: torch.Tensor, b: torch.Tensor) -> float:
 
 
 def train(data: list[Path], run: Path, steps: int, batch: int, lr: float, minutes: float | None, width: int, seed: int = 0,
-          edge_weight: float = 0.0) -> None:
+          edge_weight: float = 0.0, edge_landed: float = 1.0) -> None:
     """Trains the head on `data` (`worldpack fusion-data` folders); the last
     tenth of each folder's examples (its suite's last trajectories) is held
     out and scored against the decoder's frame, the reference and their
     average. Resumes from run/fusion.pt. `edge_weight` > 0 adds the gradient
     difference loss against the truth (losses.py), which keeps the warp's
-    edges where an MSE-only head would blend them away."""
+    edges where an MSE-only head would blend them away; `edge_landed` (in
+    [0, 1]) weighs it per pixel where the warp landed (1 in its holes)."""
     run.mkdir(parents=True, exist_ok=True)
     folders = [load_examples(d) for d in data]
     fit = [[x[: len(x) - max(1, len(x) // 10)] for x in f] for f in folders]
@@ -97,7 +98,7 @@ def train(data: list[Path], run: Path, steps: int, batch: int, lr: float, minute
     ckpt = run / "fusion.pt"
     step = resume(ckpt, head, opt, "the fusion head", key="head")
     config = {"width": width, "dilations": list(head.dilations), "data": [str(d) for d in data], "examples": n, "held_out": n - cut,
-              "edge_weight": edge_weight}
+              "edge_weight": edge_weight, "edge_landed": edge_landed}
 
     def save():
         torch.save({"head": head.state_dict(), "opt": opt.state_dict(), "step": step, "config": config}, ckpt)
@@ -122,7 +123,8 @@ def train(data: list[Path], run: Path, steps: int, batch: int, lr: float, minute
         out = head(p, r, m)
         loss = F.mse_loss(out, t)
         if edge_weight > 0:
-            loss = loss + edge_weight * gradient_difference(out, t)
+            where = None if edge_landed == 1 else 1 - (1 - edge_landed) * m
+            loss = loss + edge_weight * gradient_difference(out, t, where)
         opt.zero_grad()
         loss.backward()
         opt.step()
@@ -197,6 +199,8 @@ def export(run: Path, model: Path, out: Path, data: Path | None = None) -> None:
         "parameters": sum(p.numel() for p in head.parameters()),
         "trained": {"steps": state["step"], "examples": cfg["examples"], "data": cfg["data"],
                     "loss": "MSE" + (f" + {cfg['edge_weight']} x gradient difference (Mathieu et al. 2016)"
+                                     + (f", weighted {cfg['edge_landed']} where the warp landed"
+                                        if cfg.get("edge_landed", 1) != 1 else "")
                                      if cfg.get("edge_weight") else "")},
     }
     manifest["reference"]["graphs"]["fusion"] = "reference/fusion"
