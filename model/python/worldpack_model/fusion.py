@@ -147,6 +147,16 @@ def train(data: list[Path], run: Path, steps: int, batch: int, lr: float, minute
     (run / "fusion-held-out.json").write_text(json.dumps({"step": step, **config, "psnr": scores}, indent=1))
 
 
+def loss_name(cfg: dict) -> str:
+    """The training loss as the manifest names it (heads from before the edge term have none in `cfg`)."""
+    name = "MSE"
+    if cfg.get("edge_weight"):
+        name += f" + {cfg['edge_weight']} x gradient difference (Mathieu et al. 2016)"
+        if cfg.get("edge_landed", 1) != 1:
+            name += f", weighted {cfg['edge_landed']} where the warp landed"
+    return name
+
+
 def export(run: Path, model: Path, out: Path, data: Path | None = None) -> None:
     """A copy of the model folder `model` at `out` with the head as
     `fusion.onnx`, its manifest entry and references for the parity tests."""
@@ -197,11 +207,7 @@ def export(run: Path, model: Path, out: Path, data: Path | None = None) -> None:
         "architecture": f"{len(cfg['dilations'])} dilated 3x3 convolutions of width {cfg['width']} (dilations {cfg['dilations']}); "
                         f"output: a per-pixel convex blend of reference and decoded frame plus {CORRECTION} tanh(correction)",
         "parameters": sum(p.numel() for p in head.parameters()),
-        "trained": {"steps": state["step"], "examples": cfg["examples"], "data": cfg["data"],
-                    "loss": "MSE" + (f" + {cfg['edge_weight']} x gradient difference (Mathieu et al. 2016)"
-                                     + (f", weighted {cfg['edge_landed']} where the warp landed"
-                                        if cfg.get("edge_landed", 1) != 1 else "")
-                                     if cfg.get("edge_weight") else "")},
+        "trained": {"steps": state["step"], "examples": cfg["examples"], "data": cfg["data"], "loss": loss_name(cfg)},
     }
     manifest["reference"]["graphs"]["fusion"] = "reference/fusion"
     (out / "manifest.json").write_text(json.dumps(manifest, indent=1))

@@ -194,13 +194,13 @@ def recover(model_dir: Path, run: Path, policy: str | None) -> None:
     if absent:
         cdit.init_rate_projections_from_base()
         print(f"not in any exported layout, derived from the base patchify: {absent}")
+    exported = cdit
     if distilled is not None:
         from .diffusion import Schedule
         from .distill import EpsFromV
 
-        worst = check_against_references(model_dir, manifest, cfg, ae, EpsFromV(cdit, Schedule(cfg.diffusion).alphas_cumprod))
-    else:
-        worst = check_against_references(model_dir, manifest, cfg, ae, cdit)
+        exported = EpsFromV(cdit, Schedule(cfg.diffusion).alphas_cumprod)
+    worst = check_against_references(model_dir, manifest, cfg, ae, exported)
     if worst > 1e-3:
         raise SystemExit(f"--model: the rebuilt model differs from {model_dir}/reference by {worst:.2e}; nothing written")
     (run / "config.json").write_text(json.dumps(cfg.to_json(), indent=2))
