@@ -19,6 +19,11 @@ LoopNav protocol through the API, where a geometry model can warp what was seen.
     .venv/bin/python scripts/rest_walk.py --out docs/results/rest_walk \\
         --row worldpack=fixtures/variants/worldpack:worldpack --row baseline=fixtures/variants/baseline:baseline
 
+One walk is one world and a few dozen frames. `--worlds 1-24` walks the same
+path in each of those synthetic worlds (pictures for the first) and adds the
+way back per world and, for every row after the first, its mean difference
+from the first row with a 95% bootstrap interval over worlds.
+
 Standard library, NumPy and OpenCV only (the test venv)."""
 
 from __future__ import annotations
@@ -152,11 +157,40 @@ def strip(results: dict, path: Path, scale: int = 2) -> None:
     cv2.imwrite(str(path), cv2.cvtColor(np.concatenate(tiles, axis=0), cv2.COLOR_RGB2BGR))
 
 
+def worlds_of(spec: str) -> list[int]:
+    """`3`, `1-24` or `1,5,9`: the synthetic worlds' seeds."""
+    try:
+        if "-" in spec:
+            lo, hi = (int(x) for x in spec.split("-"))
+            seeds = list(range(lo, hi + 1))
+        else:
+            seeds = [int(x) for x in spec.split(",")]
+    except ValueError:
+        seeds = []
+    if not seeds or min(seeds) < 0:
+        sys.exit(f"--worlds {spec!r}: expected a seed, a range A-B or a list A,B,C of seeds >= 0")
+    return seeds
+
+
+def way_back(steps: list[dict]) -> float:
+    return float(np.mean([s["psnr_db"] for s in steps if s["phase"] == "back"]))
+
+
+def paired(first: list[float], other: list[float], draws: int = 2000) -> dict:
+    """Mean of other - first over worlds, a 95% bootstrap interval, and how many worlds it wins."""
+    d = np.asarray(other) - np.asarray(first)
+    rng = np.random.default_rng(0)
+    means = d[rng.integers(0, len(d), (draws, len(d)))].mean(axis=1)
+    return {"diff_db": round(float(d.mean()), 2), "ci95": [round(float(np.percentile(means, q)), 2) for q in (2.5, 97.5)],
+            "wins": int((d > 0).sum()), "worlds": len(d)}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--row", action="append", required=True, help="NAME=MODEL_FOLDER:POLICY (repeatable)")
     ap.add_argument("--bin", default="target/release/worldpack")
-    ap.add_argument("--seed", type=int, default=3)
+    ap.add_argument("--seed", type=int, default=3, help="the synthetic world (see --worlds for many)")
+    ap.add_argument("--worlds", help="walk in each of these worlds: a range A-B or a list A,B,C (overrides --seed)")
     ap.add_argument("--steps", type=int, default=10, help="sampler steps per frame")
     ap.add_argument("--method", default="ddim")
     ap.add_argument("--covisible", action="store_true", help="serve with --covisible, as ./scripts/serve.sh does")
@@ -164,14 +198,22 @@ def main() -> None:
     ap.add_argument("--observe-outbound", action="store_true",
                     help="observe the look-around and the way out (the world's frames and depth); generate only the way back")
     a = ap.parse_args()
-    results = {}
+    worlds = worlds_of(a.worlds) if a.worlds else [a.seed]
+    rows = []
     for spec in a.row:
         name, _, rest = spec.partition("=")
         model, _, policy = rest.rpartition(":")
         if not (name and model and policy):
             sys.exit(f"--row {spec!r}: expected NAME=MODEL_FOLDER:POLICY")
+        rows.append((name, model, policy))
+    results, per_world = {}, {}
+    for name, model, policy in rows:
         print(f"{name}: {model} with {policy}", flush=True)
-        results[name] = run_row(a.bin, model, policy, a.seed, a.steps, a.method, a.observe_outbound, a.covisible)
+        for k, seed in enumerate(worlds):
+            r = run_row(a.bin, model, policy, seed, a.steps, a.method, a.observe_outbound, a.covisible)
+            per_world.setdefault(name, []).append(way_back(r["steps"]))
+            if k == 0:
+                results[name] = r
     a.out.parent.mkdir(parents=True, exist_ok=True)
     summary = {}
     for name, r in results.items():
@@ -181,10 +223,25 @@ def main() -> None:
                 by_phase.setdefault(s["phase"], []).append(s["psnr_db"])
         summary[name] = {p: round(float(np.mean(v)), 2) for p, v in by_phase.items()}
         print(f"{name:>12}: " + ", ".join(f"{p} {v:.2f} dB" for p, v in summary[name].items()))
-    record = {"command": " ".join(sys.argv), "seed": a.seed, "sampler": f"{a.method}, {a.steps} steps",
+    first = rows[0][0]
+    across = None
+    if len(worlds) > 1:
+        across = {"worlds": worlds, "way_back_db": {n: [round(v, 2) for v in vs] for n, vs in per_world.items()},
+                  "mean_way_back_db": {n: round(float(np.mean(vs)), 2) for n, vs in per_world.items()},
+                  f"against_{first}": {n: paired(per_world[first], vs) for n, vs in per_world.items() if n != first}}
+        print(f"the way back over {len(worlds)} worlds ({worlds[0]}..{worlds[-1]}):")
+        for n, vs in per_world.items():
+            line = f"{n:>12}: {np.mean(vs):.2f} dB"
+            if n != first:
+                p = across[f"against_{first}"][n]
+                line += f", {p['diff_db']:+.2f} [{p['ci95'][0]:+.2f}, {p['ci95'][1]:+.2f}] against {first}, ahead in {p['wins']} of {p['worlds']}"
+            print(line)
+    record = {"command": " ".join(sys.argv), "seed": worlds[0], "sampler": f"{a.method}, {a.steps} steps",
               "observe_outbound": a.observe_outbound,
               "mean_psnr_db_by_phase": summary,
               "rows": {n: {k: v for k, v in r.items() if k not in ("frames", "truths")} for n, r in results.items()}}
+    if across:
+        record["across_worlds"] = across
     a.out.with_suffix(".json").write_text(json.dumps(record, indent=1))
     curve(results, a.out.with_suffix(".png"))
     strip(results, Path(f"{a.out}-strip.png"))

@@ -4,16 +4,17 @@
 //! joining the memory that later frames select from. Trajectories run in
 //! lockstep so one denoiser call serves a whole batch of them.
 
+use std::cell::RefCell;
 use std::collections::HashMap;
 
 use memory::covisibility::{self, DepthGrid};
 use memory::{ContextPlan, FrameMemory, Frustum, MemoryFrame, Policy};
-use model::warp;
+use model::warp::{self, fused_reference, stands_at};
 use model::pack::ContextFrame;
-use model::{Request, WarpSource};
+use model::{Model, Request, Sampler, WarpSource};
 
 use crate::features::{Embedding, FeatureError, Lpips, VideoFeatures, frechet_distance};
-use crate::probe::{FUSED_FRAMES, FrameScore, Predictor, ProbeError, Row, encode_frames, fused_warp, reference_image, warp_sources};
+use crate::probe::{FUSED_FRAMES, FrameScore, FusionExamples, Predictor, ProbeError, Row, encode_frames, fused_warp, reference_image, warp_sources};
 use crate::suite::Trajectory;
 
 /// The frames a rollout generates: the return leg, from the returning point,
@@ -61,6 +62,8 @@ struct Run<'a> {
     observed: FrameMemory,
     latents: Vec<Vec<f32>>,
     previous: Option<ContextPlan>,
+    /// The first generated frame: everything before it was observed.
+    start: usize,
     next: usize,
     end: usize,
     scores: Vec<FrameScore>,
@@ -73,6 +76,53 @@ pub struct Scorer<'a> {
     pub lpips: Option<&'a Lpips>,
     pub dreamsim: Option<&'a Embedding>,
     pub keep_frames: bool,
+    /// Fusion-head training examples taken on the way (`worldpack fusion-data --rollout-with`).
+    pub capture: Option<&'a Capture<'a>>,
+}
+
+/// Fusion-head examples from a fused model's rollouts, as the head meets
+/// them in use: the frame it was given (the same request through `bare`, the
+/// model without the head, whose denoiser is the same), the fused reference,
+/// where the warp landed, and the truth. Every `stride`-th frame generated
+/// since the last observation; none where the head is not asked (no warp
+/// source, or the best source stands at the target's pose).
+pub struct Capture<'a> {
+    pub bare: &'a Model,
+    pub stride: usize,
+    pub examples: RefCell<FusionExamples>,
+}
+
+impl Capture<'_> {
+    fn take<'f>(
+        &self,
+        requests: &[Request],
+        frame: &dyn Fn(usize, u64) -> Option<ContextFrame<'f>>,
+        packing: &memory::Packing,
+        sampler: &Sampler,
+        truth: impl Fn(usize) -> &'f [u8],
+    ) -> Result<(), ProbeError> {
+        let wanted: Vec<usize> = (0..requests.len())
+            .filter(|&j| {
+                let r = &requests[j];
+                r.since_observed as usize % self.stride.max(1) == 0 && r.warp.first().is_some_and(|best| !stands_at(best.pose, r.target_pose))
+            })
+            .collect();
+        if wanted.is_empty() {
+            return Ok(());
+        }
+        let subset: Vec<Request> = wanted.iter().map(|&j| requests[j]).collect();
+        let bare = self.bare.predict(packing, &subset, &|i, id| frame(wanted[i], id), sampler)?;
+        let mut out = self.examples.borrow_mut();
+        for ((&j, r), p) in wanted.iter().zip(&subset).zip(bare.frames) {
+            let (reference, mask) = fused_reference(r.warp, r.target_pose)?;
+            out.predicted.extend(&p.rgb);
+            out.reference.extend(reference);
+            out.mask.extend(mask.iter().map(|&m| m as u8));
+            out.truth.extend(truth(j));
+            out.count += 1;
+        }
+        Ok(())
+    }
 }
 
 impl Scorer<'_> {
@@ -177,6 +227,7 @@ pub fn rollout_as(
                         frusta,
                         traj,
                         previous: None,
+                        start: range.start,
                         next: range.start,
                         end: range.end,
                         scores: Vec::with_capacity(range.len()),
@@ -225,6 +276,7 @@ pub fn rollout_as(
                                 action: &r.traj.actions[t],
                                 seed: frame_seed(seed, suite_index[i], t),
                                 warp: source,
+                                since_observed: (t - r.start) as u32,
                             }
                         })
                         .collect();
@@ -235,6 +287,9 @@ pub fn rollout_as(
                         r.latents.get(id as usize).map(|l| ContextFrame { latent: l, time: id, pose: &r.traj.poses[id as usize], generated })
                     };
                     let mut prediction = model.predict(&policy.packing, &requests, &frame, sampler)?;
+                    if let Some(c) = scorer.capture {
+                        c.take(&requests, &frame, &policy.packing, sampler, |j| runs[chunk[j]].traj.frame(runs[chunk[j]].next))?;
+                    }
                     drop(requests);
                     if let Some(fused) = &composite {
                         for (&i, p) in chunk.iter().zip(&mut prediction.frames) {

@@ -13,7 +13,7 @@ use crate::graph::Tensor;
 use crate::manifest::LayoutSpec;
 use crate::pack::{ContextFrame, pack, stack};
 use crate::sampler::Sampler;
-use crate::manifest::FUSION_INPUTS;
+use crate::manifest::{FUSION_INPUTS, FUSION_SINCE_OBSERVED};
 use crate::warp::{WarpSource, Warped, coverage_grid, forward_warp_many, fused_reference, stands_at, warped_image};
 use crate::{GraphRole, Model};
 
@@ -38,6 +38,9 @@ pub struct Request<'a> {
     /// model gets an empty warp, as in training). Models without the warp
     /// input ignore them.
     pub warp: &'a [WarpSource<'a>],
+    /// Frames generated since the last observed one (0: the newest stored
+    /// frame was observed). A switched fusion head picks its head by it.
+    pub since_observed: u32,
 }
 
 /// A predicted frame: its scaled latent (for the memory) and its RGB pixels.
@@ -127,13 +130,16 @@ impl Model {
         let per = latent.data.len() / requests.len();
         let fused: Vec<usize> = (0..warps.len()).filter(|&j| warps[j].is_some()).collect();
         if manifest.fusion.is_some() && !fused.is_empty() {
-            images = self.fuse(images, requests, &fused)?;
+            let (shown, kept) = self.fuse(images, requests, &fused)?;
+            images = shown;
             if !self.sampled_latents {
-                // The memory keeps the frame shown: the blended ones re-encoded, the others as sampled.
-                let n = images.data.len() / requests.len();
+                // The memory keeps the frame shown (or the one the head names for it): the
+                // blended ones re-encoded, the others as sampled.
+                let kept = kept.as_ref().unwrap_or(&images);
+                let n = kept.data.len() / requests.len();
                 let blended = Tensor::new(
-                    [vec![fused.len()], images.shape[1..].to_vec()].concat(),
-                    fused.iter().flat_map(|&j| images.data[j * n..(j + 1) * n].iter().copied()).collect(),
+                    [vec![fused.len()], kept.shape[1..].to_vec()].concat(),
+                    fused.iter().flat_map(|&j| kept.data[j * n..(j + 1) * n].iter().copied()).collect(),
                 );
                 let encoded = self.encode(&blended)?;
                 for (i, &j) in fused.iter().enumerate() {
@@ -154,11 +160,11 @@ impl Model {
     /// whose best source stands at its target's pose shows that source
     /// (`warp::stands_at`: a static world seen again from where it was
     /// observed). `with` lists the requests that have sources.
-    fn fuse(&self, images: Tensor, requests: &[Request], with: &[usize]) -> Result<Tensor, ModelError> {
+    fn fuse(&self, images: Tensor, requests: &[Request], with: &[usize]) -> Result<(Tensor, Option<Tensor>), ModelError> {
         let (w, h) = (self.manifest().image.width, self.manifest().image.height);
         let n = w * h;
         let mut out = images;
-        let (mut blend, mut predicted, mut reference, mut landed) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+        let (mut blend, mut predicted, mut reference, mut landed, mut since) = (Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new());
         for &j in with {
             let best = &requests[j].warp[0];
             if stands_at(best.pose, requests[j].target_pose) {
@@ -172,23 +178,39 @@ impl Model {
             predicted.extend(out.data[j * 3 * n..(j + 1) * 3 * n].iter().map(|v| v.clamp(-1.0, 1.0)));
             reference.extend(planar(&rgb, n));
             landed.extend(mask.iter().map(|&m| m as u8 as f32));
+            since.push(requests[j].since_observed as f32);
             blend.push(j);
         }
         if blend.is_empty() {
-            return Ok(out);
+            return Ok((out, None));
         }
         let b = blend.len();
         let predicted = Tensor::new(vec![b, 3, h, w], predicted);
         let reference = Tensor::new(vec![b, 3, h, w], reference);
         let landed = Tensor::new(vec![b, 1, h, w], landed);
+        let since = Tensor::new(vec![b], since);
         let [p, r, l] = FUSION_INPUTS;
-        let fused = self.run(GraphRole::Fusion, &[(p, &predicted), (r, &reference), (l, &landed)])?.remove(0);
-        for (i, &j) in blend.iter().enumerate() {
-            for (o, v) in out.data[j * 3 * n..(j + 1) * 3 * n].iter_mut().zip(&fused.data[i * 3 * n..(i + 1) * 3 * n]) {
-                *o = v.clamp(-1.0, 1.0);
-            }
+        let mut inputs = vec![(p, &predicted), (r, &reference), (l, &landed)];
+        if self.manifest().fusion.as_ref().is_some_and(|g| g.inputs.len() == 4) {
+            inputs.push((FUSION_SINCE_OBSERVED, &since));
         }
-        Ok(out)
+        let mut outputs = self.run(GraphRole::Fusion, &inputs)?.into_iter();
+        let place = |into: &mut Tensor, from: &Tensor| {
+            for (i, &j) in blend.iter().enumerate() {
+                for (o, v) in into.data[j * 3 * n..(j + 1) * 3 * n].iter_mut().zip(&from.data[i * 3 * n..(i + 1) * 3 * n]) {
+                    *o = v.clamp(-1.0, 1.0);
+                }
+            }
+        };
+        let shown = outputs.next().ok_or_else(|| ModelError::input("fusion", "the head returned nothing"))?;
+        // A head with a second output names the frame the memory keeps.
+        let kept = outputs.next().map(|k| {
+            let mut kept = out.clone();
+            place(&mut kept, &k);
+            kept
+        });
+        place(&mut out, &shown);
+        Ok((out, kept))
     }
 
     /// The geometry model's warp input for a batch, (B, C + 1, h, w): each
