@@ -481,6 +481,22 @@ fn a_fusion_head_beats_the_model_and_the_warp_it_blends() {
     let e = String::from_utf8_lossy(&run(&["fusion-data", "--suite", suite.to_str().unwrap(), "--model", fused.to_str().unwrap(),
         "--out", data.to_str().unwrap()]).stderr).into_owned();
     assert!(e.contains("fusion head already"), "{e}");
+    // From the fused model's own rollouts, the head's input remade by its twin without the head.
+    let rollout = temp("fusion-data-rollout");
+    let from_rollouts = |model: &Path, with: &Path| {
+        run(&["fusion-data", "--suite", suite.to_str().unwrap(), "--stride", "1", "--steps", "2", "--threads", "1", "--out", rollout.to_str().unwrap(),
+            "--model", model.to_str().unwrap(), "--rollout-with", with.to_str().unwrap()])
+    };
+    let made = from_rollouts(&geometry, &fused);
+    assert!(made.status.success(), "{}", String::from_utf8_lossy(&made.stderr));
+    let taken = world::npy::read::<u8>(&rollout.join("truth.npy")).unwrap().0[0];
+    assert_eq!(world::npy::read::<u8>(&rollout.join("landed.npy")).unwrap().0, [taken, 64, 64]);
+    assert!(taken > n, "every generated frame of the return legs at stride 1 ({taken}) against every third teacher-forced one ({n})");
+    let e = String::from_utf8_lossy(&from_rollouts(&root().join("fixtures/variants/worldpack_recipe"), &fused).stderr).into_owned();
+    assert!(e.contains("--model") && e.contains("without its head"), "{e}");
+    let e = String::from_utf8_lossy(&from_rollouts(&geometry, &geometry).stderr).into_owned();
+    assert!(e.contains("--rollout-with") && e.contains("no fusion head"), "{e}");
+    let _ = std::fs::remove_dir_all(&rollout);
 
     let out = temp("fusion-probe").join("probe.json");
     ok(&["probe", "--suite", suite.to_str().unwrap(), "--stride", "2", "--latency-calls", "1", "--threads", "1",
