@@ -52,12 +52,20 @@ def panel(points, key, title):
     cv2.rectangle(img, (L, T), (W - R, H - B), (0, 0, 0), 1)
     cv2.putText(img, title, (L, T - 18), font, 0.5, (0, 0, 0), 1, cv2.LINE_AA)
     cv2.putText(img, "ms per step, p50, one session, one core", (L + 40, H - 18), font, 0.45, (0, 0, 0), 1, cv2.LINE_AA)
-    for i, p in enumerate(points):
-        q = px(p["ms"], p[key])
+    dots = [px(p["ms"], p[key]) for p in points]
+    taken = [(x - 6, y - 6, x + 6, y + 6) for x, y in dots]  # boxes labels must not cover
+    for i, (p, q) in enumerate(zip(points, dots)):
         cv2.circle(img, q, 6, COLOURS[i % len(COLOURS)], -1, cv2.LINE_AA)
-        width = cv2.getTextSize(p["label"], font, 0.4, 1)[0][0]
-        x = q[0] + 9 if q[0] + 9 + width < W - R else q[0] - 9 - width  # labels stay inside the plot
-        cv2.putText(img, p["label"], (x, q[1] - 8), font, 0.4, COLOURS[i % len(COLOURS)], 1, cv2.LINE_AA)
+        (width, height), _ = cv2.getTextSize(p["label"], font, 0.4, 1)
+        # Above right, below right, above left, below left: the first that stays inside the
+        # plot and clear of the dots and the labels placed so far.
+        spots = [(q[0] + 9, q[1] - 8), (q[0] + 9, q[1] + 8 + height), (q[0] - 9 - width, q[1] - 8), (q[0] - 9 - width, q[1] + 8 + height)]
+        box = lambda x, y: (x, y - height, x + width, y + 2)
+        inside = lambda b: b[0] >= L and b[2] <= W - R and b[1] >= T and b[3] <= H - B
+        clear = lambda b: all(b[2] < t[0] or t[2] < b[0] or b[3] < t[1] or t[3] < b[1] for t in taken)
+        x, y = next((s for s in spots if inside(box(*s)) and clear(box(*s))), next((s for s in spots if inside(box(*s))), spots[0]))
+        taken.append(box(x, y))
+        cv2.putText(img, p["label"], (x, y), font, 0.4, COLOURS[i % len(COLOURS)], 1, cv2.LINE_AA)
     return img
 
 
