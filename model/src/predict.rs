@@ -159,7 +159,9 @@ impl Model {
     /// decoded frame (it has no reference; the head is not asked), and one
     /// whose best source stands at its target's pose shows that source
     /// (`warp::stands_at`: a static world seen again from where it was
-    /// observed). `with` lists the requests that have sources.
+    /// observed). `with` lists the requests that have sources. Returns the
+    /// frames shown and, from a head with a second output, the frames the
+    /// memory keeps instead (a switched head's far blend).
     fn fuse(&self, images: Tensor, requests: &[Request], with: &[usize]) -> Result<(Tensor, Option<Tensor>), ModelError> {
         let (w, h) = (self.manifest().image.width, self.manifest().image.height);
         let n = w * h;
