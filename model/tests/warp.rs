@@ -140,32 +140,48 @@ fn noisy_or_missing_depth_degrades_the_warp_gracefully() {
     }
 }
 
+/// One step ahead of the first reference source: its frame encoded by
+/// `model` as the only context (the first full-rate slot of the WorldPack
+/// layout), a forward action, and the warp cases to warp from.
+struct OneStep {
+    cases: WarpCases,
+    first: Vec<u8>,
+    latent: Vec<f32>,
+    policy: memory::Policy,
+    plan: memory::ContextPlan,
+    action: [f32; 7],
+}
+
+fn one_step(model: &Model) -> OneStep {
+    use memory::policy::{SelectedFrame, Slot};
+    use memory::{ContextPlan, Policy, PolicyKind};
+
+    let cases = warp_cases();
+    let k = cases.k;
+    let first = cases.rgb[..cases.shape[1] * cases.shape[2] * 3].to_vec();
+    let image = model::generate::frame_to_tensor(&first, k.width, k.height, &k, k.width, k.height).unwrap().0;
+    let latent = model.encode(&image).unwrap().data;
+    let policy = Policy::preset(PolicyKind::WorldPack);
+    let layout = model.layout_for(&policy.packing).unwrap();
+    let mut slots: Vec<Slot> = layout.slots.iter().flat_map(|s| (0..s.count).map(move |_| Slot { rate: s.rate, frame: None })).collect();
+    slots[0].frame = Some(SelectedFrame { id: 0, time: 0, overlap: 1.0, score: 1.0 });
+    OneStep { cases, first, latent, policy, plan: ContextPlan { slots }, action: [1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0] }
+}
+
 /// With a fusion head, a frame still does not depend on its batch: a request
 /// with warp sources is blended and its latent is the blend re-encoded, one
 /// without sources keeps its decoded frame and sampled latent, alone or
 /// beside the other.
 #[test]
 fn a_fused_frame_does_not_depend_on_its_batch() {
-    use memory::policy::{SelectedFrame, Slot};
-    use memory::{ContextPlan, Policy, PolicyKind};
     use model::pack::ContextFrame;
     use model::{Method, Request, Sampler};
 
     let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../fixtures/variants/worldpack_geometry_fused");
     let mut model = Model::load(&dir, RuntimeOptions { provider: Provider::Cpu, threads: 1 }).expect("the fused model loads");
-    let WarpCases { k, shape, rgb, depth, src, dst, .. } = warp_cases();
-    let pixels = shape[1] * shape[2];
-    let first = &rgb[..pixels * 3];
-    let latent = model::generate::frame_to_tensor(first, k.width, k.height, &k, k.width, k.height).unwrap().0;
-    let latent = model.encode(&latent).unwrap().data;
-    let policy = Policy::preset(PolicyKind::WorldPack);
-    let layout = model.layout_for(&policy.packing).unwrap();
-    let mut slots: Vec<Slot> = layout.slots.iter().flat_map(|s| (0..s.count).map(move |_| Slot { rate: s.rate, frame: None })).collect();
-    slots[0].frame = Some(SelectedFrame { id: 0, time: 0, overlap: 1.0, score: 1.0 });
-    let plan = ContextPlan { slots };
+    let OneStep { cases: WarpCases { k, rgb, depth, src, dst, .. }, first, latent, policy, plan, action } = one_step(&model);
     let frame = |_: usize, id: u64| (id == 0).then(|| ContextFrame { latent: &latent, time: 0, pose: &src[0], generated: false });
     let sampler = Sampler::new(&model.manifest().diffusion, 3, Method::Ddim, 0.0).unwrap();
-    let action = [1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0];
     let warp = sources(&rgb, &depth, &src, &k);
     let with = Request { plan: &plan, target_time: 1, target_pose: &dst[0], action: &action, seed: 5, warp: &warp[..1], since_observed: 0 };
     let without = Request { warp: &[], seed: 6, ..with };
@@ -202,8 +218,6 @@ fn a_fused_frame_does_not_depend_on_its_batch() {
 /// both, the far head's frame re-encoded (its manifest's `memory_keeps`).
 #[test]
 fn a_switched_head_shows_its_near_frame_and_keeps_its_far_one() {
-    use memory::policy::{SelectedFrame, Slot};
-    use memory::{ContextPlan, Policy, PolicyKind};
     use model::pack::ContextFrame;
     use model::{Method, Request, Sampler};
 
@@ -211,18 +225,9 @@ fn a_switched_head_shows_its_near_frame_and_keeps_its_far_one() {
     let model = Model::load(&dir, RuntimeOptions { provider: Provider::Cpu, threads: 1 }).expect("the student loads");
     let switch = model.manifest().fusion.as_ref().map(|g| g.inputs.len());
     assert_eq!(switch, Some(4), "the served student's head is switched");
-    let WarpCases { k, shape, rgb, depth, src, dst, .. } = warp_cases();
-    let pixels = shape[1] * shape[2];
-    let first = model::generate::frame_to_tensor(&rgb[..pixels * 3], k.width, k.height, &k, k.width, k.height).unwrap().0;
-    let latent = model.encode(&first).unwrap().data;
-    let policy = Policy::preset(PolicyKind::WorldPack);
-    let layout = model.layout_for(&policy.packing).unwrap();
-    let mut slots: Vec<Slot> = layout.slots.iter().flat_map(|s| (0..s.count).map(move |_| Slot { rate: s.rate, frame: None })).collect();
-    slots[0].frame = Some(SelectedFrame { id: 0, time: 0, overlap: 1.0, score: 1.0 });
-    let plan = ContextPlan { slots };
+    let OneStep { cases: WarpCases { k, rgb, depth, src, dst, .. }, latent, policy, plan, action, .. } = one_step(&model);
     let frame = |_: usize, id: u64| (id == 0).then(|| ContextFrame { latent: &latent, time: 0, pose: &src[0], generated: false });
     let sampler = Sampler::new(&model.manifest().diffusion, 1, Method::Ddim, 0.0).unwrap();
-    let action = [1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0];
     let warp = sources(&rgb, &depth, &src, &k);
     let near = Request { plan: &plan, target_time: 1, target_pose: &dst[0], action: &action, seed: 5, warp: &warp[..1], since_observed: 0 };
     let far = Request { since_observed: 1000, ..near };

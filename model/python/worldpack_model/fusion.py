@@ -204,6 +204,17 @@ def loss_name(cfg: dict) -> str:
     return name
 
 
+def reference_images(data: Path | None, h: int, w: int) -> tuple:
+    """A head's reference inputs (predicted, reference, landed) for two
+    items: the last held-out examples when at hand, else seeded noise."""
+    if data is not None:
+        p, r, m, _ = load_examples(data)
+        return p[-2:], r[-2:], m[-2:]
+    g = torch.Generator().manual_seed(0)
+    return (torch.rand(2, 3, h, w, generator=g) * 2 - 1, torch.rand(2, 3, h, w, generator=g) * 2 - 1,
+            (torch.rand(2, 1, h, w, generator=g) > 0.3).float())
+
+
 def export(run: Path, model: Path, out: Path, data: Path | None = None) -> None:
     """A copy of the model folder `model` at `out` with the head as
     `fusion.onnx`, its manifest entry and references for the parity tests."""
@@ -223,14 +234,7 @@ def export(run: Path, model: Path, out: Path, data: Path | None = None) -> None:
         shutil.rmtree(out)
     shutil.copytree(model, out)
     h, w = manifest["image"]["height"], manifest["image"]["width"]
-    # Reference inputs: held-out examples when at hand, else seeded noise.
-    if data is not None:
-        p, r, m, _ = load_examples(data)
-        args = (p[-2:], r[-2:], m[-2:])
-    else:
-        g = torch.Generator().manual_seed(0)
-        args = (torch.rand(2, 3, h, w, generator=g) * 2 - 1, torch.rand(2, 3, h, w, generator=g) * 2 - 1,
-                (torch.rand(2, 1, h, w, generator=g) > 0.3).float())
+    args = reference_images(data, h, w)
     proto = to_onnx(head, args, list(INPUTS), ["image"])
     import onnx
 
@@ -283,14 +287,7 @@ def switch(far: Path, near: Path, steps: int, out: Path, data: Path | None = Non
         staged = Path(tmp) / out.name
         shutil.copytree(far, staged)
         heads = SwitchedHeads(near_head, far_head, steps, keep_far).eval()
-        if data is not None:
-            p, r, m, _ = load_examples(data)
-            images = (p[-2:], r[-2:], m[-2:])
-        else:
-            g = torch.Generator().manual_seed(0)
-            images = (torch.rand(2, 3, h, w, generator=g) * 2 - 1, torch.rand(2, 3, h, w, generator=g) * 2 - 1,
-                      (torch.rand(2, 1, h, w, generator=g) > 0.3).float())
-        args = images + (torch.tensor([0.0, float(steps)]),)  # one item on each side of the switch
+        args = reference_images(data, h, w) + (torch.tensor([0.0, float(steps)]),)  # one item on each side of the switch
         outputs = ("image", "kept") if keep_far else ("image",)
         onnx.save(to_onnx(heads, args, list(INPUTS) + [SINCE_OBSERVED], list(outputs)), staged / far_spec["file"])
         folder = staged / "reference" / "fusion"
