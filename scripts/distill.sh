@@ -7,9 +7,8 @@
 #   ./scripts/distill.sh export    # -> fixtures/variants/worldpack_geometry_fused_<N>step, with the teacher's fusion head
 #   ./scripts/distill.sh head      # replaces that head with the student's own: trained on its predictions,
 #                                  # MSE + HEAD_EDGE (1) x the gradient difference loss, HEAD_STEPS (4000)
-#   ./scripts/distill.sh switch    # then shows the teacher's head's frame while fewer than NEAR_STEPS (30)
-#                                  # frames were generated since the last observation, its own after;
-#                                  # the memory keeps its own head's frame throughout
+#   ./scripts/distill.sh pair      # then shows the teacher's head's frame and keeps its own head's
+#                                  # (the memory's context for the next frames)
 # RUN (runs/distill/<N>step) holds the run; PY runs `python -m worldpack_model`
 # (default ./scripts/model.sh, which sets up .venv-train).
 set -euo pipefail
@@ -44,8 +43,8 @@ case "${1:-}" in
     "${py[@]}" fusion-train --data "$run/fusion-data" --run "$run/head" --steps "${HEAD_STEPS:-4000}" \
         --edge-weight "${HEAD_EDGE:-1}" --threads "${THREADS:-1}"
     "${py[@]}" fusion-export --run "$run/head" --model "$bare" --out "$out" --data "$run/fusion-data" ;;
-  switch)
+  pair)
     data=(); [ -f "$run/fusion-data/truth.npy" ] && data=(--data "$run/fusion-data")
-    "${py[@]}" fusion-switch --far "$out" --near "$teacher" --near-steps "${NEAR_STEPS:-30}" --keep-far --out "$out" "${data[@]}" ;;
-  *) sed -n '2,14p' "$0"; exit 2 ;;
+    "${py[@]}" fusion-pair --kept "$out" --shown "$teacher" --out "$out" "${data[@]}" ;;
+  *) sed -n '2,13p' "$0"; exit 2 ;;
 esac

@@ -31,7 +31,7 @@ def point(spec):
 def panel(points, key, title):
     img = np.full((H, W, 3), 255, np.uint8)
     xs, ys = [p["ms"] for p in points], [p[key] for p in points]
-    x0, x1 = 0.0, max(xs) * 1.1
+    x0, x1 = 0.0, max(max(xs), 40) * 1.1  # the 40 ms bar always in view
     pad = (max(ys) - min(ys)) * 0.15 or 0.1
     y0, y1 = min(ys) - pad, max(ys) + pad
     px = lambda x, y: (int(L + (x - x0) / (x1 - x0) * (W - L - R)), int(H - B - (y - y0) / (y1 - y0) * (H - T - B)))

@@ -66,7 +66,7 @@ pub struct Options {
     pub limit: Option<usize>,
     /// Roll the return legs out with this fused model (co-visible selection, as served)
     /// and take the examples from its own frames; --model must be the same model
-    /// without its head. --stride then counts frames generated since the observation.
+    /// without its head. --stride then counts along each return leg.
     #[arg(long)]
     pub rollout_with: Option<PathBuf>,
     #[command(flatten)]

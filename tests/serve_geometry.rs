@@ -56,8 +56,6 @@ fn a_geometry_model_warps_the_best_observed_frame_with_depth_across_restarts() {
     let (code, r) = s.post(&format!("/v1/sessions/{id}/step"), &json!({ "action": {}, "pose": pose0 }));
     assert_eq!((code, r["index"].as_u64()), (200, Some(8)), "{r}");
     assert_eq!(r["selection"]["warp_frames"][0].as_u64(), Some(0), "{r}");
-    // Frame 7 was generated after frame 6 was observed: the count comes back from the store too.
-    assert_eq!(r["selection"]["since_observed"].as_u64(), Some(1), "{r}");
     // Occlusion-aware selection reads the restored depth: three observed frames have it.
     let select = |body: Value| s.post(&format!("/v1/sessions/{id}/select"), &body);
     let (code, r) = select(json!({ "pose": pose0, "covisibility": {} }));
@@ -165,8 +163,7 @@ fn a_fusion_head_serves_frames_closer_to_the_world() {
         assert!(turn["truth"].is_null());
         step(json!({ "action": { "yaw_deg": 90 }, "observe": true }));
         let back: Vec<Value> = (0..4).map(|k| step(json!({ "action": { "forward": true }, "seed": k }))).collect();
-        for (k, r) in back.iter().enumerate() {
-            assert_eq!(r["selection"]["since_observed"].as_u64(), Some(k as u64), "{name}: {r}");
+        for r in &back {
             assert!(r["timings_ms"]["warp"].as_f64().unwrap() > 0.0 && !r["selection"]["warp_frames"].as_array().unwrap().is_empty(), "{name}: {r}");
         }
         back.iter().map(|r| r["truth"]["psnr_db"].as_f64().unwrap()).sum::<f64>() / back.len() as f64

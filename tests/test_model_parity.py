@@ -83,30 +83,22 @@ def test_variants_store_weights_as_float16():
         assert halves and len(casts) >= len(halves), f"{model.name}: float16 storage declared but not found"
 
 
-SWITCHED = [m for m in VARIANTS if "switch" in json.loads((m / "manifest.json").read_text()).get("fusion", {})]
+PAIRED = [m for m in VARIANTS if "pair" in json.loads((m / "manifest.json").read_text()).get("fusion", {})]
 
 
-@pytest.mark.parametrize("model", SWITCHED, ids=[m.name for m in SWITCHED])
-def test_a_switched_head_is_its_near_model_head_below_near_steps(model):
-    """fusion.SwitchedHeads as exported: the near model's own head (run from
-    its folder) until `near_steps` frames were generated since an
-    observation, a different frame from there on; with `memory_keeps: far`,
-    the second output is the far frame at any distance."""
+@pytest.mark.parametrize("model", PAIRED, ids=[m.name for m in PAIRED])
+def test_a_head_pair_shows_its_shown_model_head(model):
+    """fusion.HeadPair as exported: the frame shown is the head of the model
+    named `pair.shown` (run from its own folder); the frame kept is another."""
     spec = json.loads((model / "manifest.json").read_text())["fusion"]
-    near_dir = model.parent / spec["switch"]["near"]["model"]
-    near_spec = json.loads((near_dir / "manifest.json").read_text())["fusion"]
+    shown_dir = model.parent / spec["pair"]["shown"]["model"]
+    shown_spec = json.loads((shown_dir / "manifest.json").read_text())["fusion"]
     arrays = load("reference/fusion", model)
     images = {k: arrays[k] for k in ("predicted", "reference", "landed")}
-    near = session(near_spec["file"], near_dir).run(None, images)[0]
-    k = spec["switch"]["near_steps"]
-    run = lambda since: session(spec["file"], model).run(None, dict(images, since_observed=np.full(len(near), since, np.float32)))
-    far = run(10 * k)[0]
-    for since, is_near in ((0, True), (k - 1, True), (k, False), (10 * k, False)):
-        got = run(since)
-        gap = float(np.abs(got[0] - near).max())
-        assert (gap < 1e-5) == is_near, f"{model.name}: since_observed {since}: {gap} from {near_dir.name}'s head"
-        if spec["switch"].get("memory_keeps") == "far":  # the second output, at any distance
-            assert float(np.abs(got[1] - far).max()) < 1e-5, f"{model.name}: since_observed {since}: kept is not the far frame"
+    alone = session(shown_spec["file"], shown_dir).run(None, images)[0]
+    image, kept = session(spec["file"], model).run(None, images)
+    assert float(np.abs(image - alone).max()) < 1e-5, f"{model.name}: the frame shown is not {shown_dir.name}'s head's"
+    assert float(np.abs(kept - image).max()) > 0.01, f"{model.name}: the frame kept is the frame shown"
 
 
 @pytest.mark.parametrize("name,file,spec", graphs(), ids=[g[0] for g in graphs()])

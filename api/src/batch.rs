@@ -46,8 +46,6 @@ pub struct Item {
     pub seed: u64,
     pub warp: Vec<OwnedWarp>,
     pub frames: HashMap<u64, OwnedFrame>,
-    /// Frames the session generated since its last observed one.
-    pub since_observed: u32,
 }
 
 /// An item's frame and the times of the call it was part of.
@@ -180,7 +178,7 @@ pub fn call(model: &Model, packing: &Packing, sampler: &Sampler, items: &[&Item]
     let requests: Vec<Request> = items
         .iter()
         .zip(&warps)
-        .map(|(it, warp)| Request { plan: &it.plan, target_time: it.target_time, target_pose: &it.target_pose, action: &it.action, seed: it.seed, warp, since_observed: it.since_observed })
+        .map(|(it, warp)| Request { plan: &it.plan, target_time: it.target_time, target_pose: &it.target_pose, action: &it.action, seed: it.seed, warp })
         .collect();
     let lookup = |i: usize, id: u64| {
         items[i].frames.get(&id).map(|f| ContextFrame { latent: &f.latent, time: f.time, pose: &f.pose, generated: f.generated })

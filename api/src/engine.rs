@@ -50,8 +50,6 @@ pub struct StepOutcome {
     pub truth: Option<TruthScore>,
     /// The world's own frame (an observing step), not the model's.
     pub observed: bool,
-    /// Frames generated since the last observed one, before this step.
-    pub since_observed: u32,
 }
 
 /// A generated frame against the synthetic world's true frame at its pose.
@@ -151,7 +149,6 @@ impl Engine {
             warp_frames: Vec::new(),
             truth: None,
             observed: true,
-            since_observed: 0,
         })
     }
 
@@ -189,7 +186,6 @@ impl Engine {
             Some(spec) => s.warp_sources(&frustum, spec.frames, self.covisible)?,
             None => (Vec::new(), Vec::new()),
         };
-        let since_observed = s.since_observed();
         // Owned, so the call can run in a batch with other sessions' steps.
         let item = Item {
             target_time: time,
@@ -205,7 +201,6 @@ impl Engine {
                 })
                 .collect(),
             plan: plan.clone(),
-            since_observed,
         };
         let outcome = match &self.batcher {
             Some(b) => b.predict(m, &s.policy.packing, sampler, item)?,
@@ -247,7 +242,6 @@ impl Engine {
             warp_frames,
             truth,
             observed: false,
-            since_observed,
         })
     }
 

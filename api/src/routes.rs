@@ -518,7 +518,7 @@ pub async fn step(State(st): St, caller: Caller, id: Result<Path<u64>, PathRejec
             image_png: B64.encode(&o.png),
             steps: sampler.len(),
             provider: st2.engine.model.as_ref().map(|m| m.provider().to_string()),
-            selection: Selection { plan: PlanAnswer::of(&s.policy, &o.plan), layout: o.layout, exact_evaluations: o.exact_evaluations, warp_frames: o.warp_frames, since_observed: o.since_observed },
+            selection: Selection { plan: PlanAnswer::of(&s.policy, &o.plan), layout: o.layout, exact_evaluations: o.exact_evaluations, warp_frames: o.warp_frames },
             timings_ms: StepTimings { select, warp, sample, decode, store, total: 0.0 },
             truth: o.truth.map(|t| TruthAnswer { psnr_db: t.psnr_db, ssim: t.ssim, image: format!("/v1/sessions/{}/frames/{}/truth", s.id, o.index) }),
         })
@@ -888,10 +888,6 @@ pub struct Selection {
     /// The observed frames with depth a geometry model warped into the new
     /// view, best first (empty for other models, or when no frame with depth sees it).
     pub warp_frames: Vec<u64>,
-    /// Frames the session generated since its last observed one, before this
-    /// step (0 for an observing step). A switched fusion head blends with its
-    /// near head while this is below the manifest's `fusion.switch.near_steps`.
-    pub since_observed: u32,
 }
 
 #[derive(Serialize, ToSchema)]

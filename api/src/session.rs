@@ -114,11 +114,6 @@ impl Session {
         Ok(Frustum::new(pose, self.record.intrinsics)?)
     }
 
-    /// Frames generated since the newest observed one (0 when it is the newest).
-    pub fn since_observed(&self) -> u32 {
-        self.frames.iter().rev().take_while(|f| f.generated).count().try_into().unwrap_or(u32::MAX)
-    }
-
     /// Adds a committed frame to the in-memory index.
     pub fn push(&mut self, time: u64, pose: Pose, latent: Vec<f32>, player: Option<PlayerState>, generated: bool) -> Result<(), ApiError> {
         let frustum = self.frustum(pose)?;

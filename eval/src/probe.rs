@@ -270,7 +270,6 @@ fn predict_model(
                 action: &traj.actions[t],
                 seed: target_seed(settings.seed, t),
                 warp: source,
-                since_observed: 0, // teacher-forced: the context is the truth
             })
             .collect();
         let prediction = m.predict(&policy.packing, &requests, &frame, sampler)?;

@@ -62,7 +62,7 @@ struct Run<'a> {
     observed: FrameMemory,
     latents: Vec<Vec<f32>>,
     previous: Option<ContextPlan>,
-    /// The first generated frame: everything before it was observed.
+    /// The first generated frame (the return leg's start).
     start: usize,
     next: usize,
     end: usize,
@@ -83,9 +83,9 @@ pub struct Scorer<'a> {
 /// Fusion-head examples from a fused model's rollouts, as the head meets
 /// them in use: the frame it was given (the same request through `bare`, the
 /// model without the head, whose denoiser is the same), the fused reference,
-/// where the warp landed, and the truth. Every `stride`-th frame generated
-/// since the last observation; none where the head is not asked (no warp
-/// source, or the best source stands at the target's pose).
+/// where the warp landed, and the truth. Every `stride`-th frame of a return
+/// leg; none where the head is not asked (no warp source, or the best source
+/// stands at the target's pose).
 pub struct Capture<'a> {
     pub bare: &'a Model,
     pub stride: usize,
@@ -99,12 +99,12 @@ impl Capture<'_> {
         frame: &dyn Fn(usize, u64) -> Option<ContextFrame<'f>>,
         packing: &memory::Packing,
         sampler: &Sampler,
-        truth: impl Fn(usize) -> &'f [u8],
+        leg: impl Fn(usize) -> (usize, &'f [u8]),
     ) -> Result<(), ProbeError> {
         let wanted: Vec<usize> = (0..requests.len())
             .filter(|&j| {
                 let r = &requests[j];
-                r.since_observed as usize % self.stride.max(1) == 0 && r.warp.first().is_some_and(|best| !stands_at(best.pose, r.target_pose))
+                leg(j).0 % self.stride.max(1) == 0 && r.warp.first().is_some_and(|best| !stands_at(best.pose, r.target_pose))
             })
             .collect();
         if wanted.is_empty() {
@@ -118,7 +118,7 @@ impl Capture<'_> {
             out.predicted.extend(&p.rgb);
             out.reference.extend(reference);
             out.mask.extend(mask.iter().map(|&m| m as u8));
-            out.truth.extend(truth(j));
+            out.truth.extend(leg(j).1);
             out.count += 1;
         }
         Ok(())
@@ -276,7 +276,6 @@ pub fn rollout_as(
                                 action: &r.traj.actions[t],
                                 seed: frame_seed(seed, suite_index[i], t),
                                 warp: source,
-                                since_observed: (t - r.start) as u32,
                             }
                         })
                         .collect();
@@ -288,7 +287,12 @@ pub fn rollout_as(
                     };
                     let mut prediction = model.predict(&policy.packing, &requests, &frame, sampler)?;
                     if let Some(c) = scorer.capture {
-                        c.take(&requests, &frame, &policy.packing, sampler, |j| runs[chunk[j]].traj.frame(runs[chunk[j]].next))?;
+                        // Request j's place on its return leg and its true frame.
+                        let leg = |j: usize| {
+                            let r = &runs[chunk[j]];
+                            (r.next - r.start, r.traj.frame(r.next))
+                        };
+                        c.take(&requests, &frame, &policy.packing, sampler, leg)?;
                     }
                     drop(requests);
                     if let Some(fused) = &composite {

@@ -79,10 +79,6 @@ impl TensorSpec {
 /// reference, (B, 3, H, W) in [-1, 1], and where the warp landed, (B, 1, H, W) of 0 or 1.
 pub const FUSION_INPUTS: [&str; 3] = ["predicted", "reference", "landed"];
 
-/// A switched head's fourth input, (B,): the frames generated since the last
-/// observed one (python: fusion.SwitchedHeads picks its head by it).
-pub const FUSION_SINCE_OBSERVED: &str = "since_observed";
-
 #[derive(Clone, Debug, Deserialize)]
 pub struct GraphSpec {
     pub file: String,
@@ -330,12 +326,10 @@ impl Manifest {
                 return bad("fusion", "a fusion head blends the warp of the model's warp sources, but the denoiser takes no warp".into());
             }
             let names: Vec<&str> = g.inputs.iter().map(|t| t.name.as_str()).collect();
-            let plain = names == FUSION_INPUTS;
-            let switched = names.len() == 4 && names[..3] == FUSION_INPUTS && names[3] == FUSION_SINCE_OBSERVED;
-            if !(plain || switched) {
-                return bad("fusion.inputs", format!("expected {FUSION_INPUTS:?}, optionally then {FUSION_SINCE_OBSERVED:?}; got {names:?}"));
+            if names != FUSION_INPUTS {
+                return bad("fusion.inputs", format!("expected {FUSION_INPUTS:?}, got {names:?}"));
             }
-            // The frame shown, and optionally the frame the memory keeps.
+            // The frame shown, and optionally the frame the memory keeps (python: fusion.HeadPair).
             let outputs: Vec<&str> = g.outputs.iter().map(|t| t.name.as_str()).collect();
             if outputs.len() != 1 && outputs != ["image", "kept"] {
                 return bad("fusion.outputs", format!("expected one output, or [\"image\", \"kept\"]; got {outputs:?}"));

@@ -13,7 +13,7 @@ use crate::graph::Tensor;
 use crate::manifest::LayoutSpec;
 use crate::pack::{ContextFrame, pack, stack};
 use crate::sampler::Sampler;
-use crate::manifest::{FUSION_INPUTS, FUSION_SINCE_OBSERVED};
+use crate::manifest::FUSION_INPUTS;
 use crate::warp::{WarpSource, Warped, coverage_grid, forward_warp_many, fused_reference, stands_at, warped_image};
 use crate::{GraphRole, Model};
 
@@ -38,9 +38,6 @@ pub struct Request<'a> {
     /// model gets an empty warp, as in training). Models without the warp
     /// input ignore them.
     pub warp: &'a [WarpSource<'a>],
-    /// Frames generated since the last observed one (0: the newest stored
-    /// frame was observed). A switched fusion head picks its head by it.
-    pub since_observed: u32,
 }
 
 /// A predicted frame: its scaled latent (for the memory) and its RGB pixels.
@@ -161,12 +158,12 @@ impl Model {
     /// (`warp::stands_at`: a static world seen again from where it was
     /// observed). `with` lists the requests that have sources. Returns the
     /// frames shown and, from a head with a second output, the frames the
-    /// memory keeps instead (a switched head's far blend).
+    /// memory keeps instead (a head pair's second head).
     fn fuse(&self, images: Tensor, requests: &[Request], with: &[usize]) -> Result<(Tensor, Option<Tensor>), ModelError> {
         let (w, h) = (self.manifest().image.width, self.manifest().image.height);
         let n = w * h;
         let mut out = images;
-        let (mut blend, mut predicted, mut reference, mut landed, mut since) = (Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new());
+        let (mut blend, mut predicted, mut reference, mut landed) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
         for &j in with {
             let best = &requests[j].warp[0];
             if stands_at(best.pose, requests[j].target_pose) {
@@ -180,7 +177,6 @@ impl Model {
             predicted.extend(out.data[j * 3 * n..(j + 1) * 3 * n].iter().map(|v| v.clamp(-1.0, 1.0)));
             reference.extend(planar(&rgb, n));
             landed.extend(mask.iter().map(|&m| m as u8 as f32));
-            since.push(requests[j].since_observed as f32);
             blend.push(j);
         }
         if blend.is_empty() {
@@ -190,13 +186,8 @@ impl Model {
         let predicted = Tensor::new(vec![b, 3, h, w], predicted);
         let reference = Tensor::new(vec![b, 3, h, w], reference);
         let landed = Tensor::new(vec![b, 1, h, w], landed);
-        let since = Tensor::new(vec![b], since);
         let [p, r, l] = FUSION_INPUTS;
-        let mut inputs = vec![(p, &predicted), (r, &reference), (l, &landed)];
-        if self.manifest().fusion.as_ref().is_some_and(|g| g.inputs.len() == 4) {
-            inputs.push((FUSION_SINCE_OBSERVED, &since));
-        }
-        let mut outputs = self.run(GraphRole::Fusion, &inputs)?.into_iter();
+        let mut outputs = self.run(GraphRole::Fusion, &[(p, &predicted), (r, &reference), (l, &landed)])?.into_iter();
         let place = |into: &mut Tensor, from: &Tensor| {
             for (i, &j) in blend.iter().enumerate() {
                 for (o, v) in into.data[j * 3 * n..(j + 1) * 3 * n].iter_mut().zip(&from.data[i * 3 * n..(i + 1) * 3 * n]) {

@@ -183,7 +183,7 @@ fn a_fused_frame_does_not_depend_on_its_batch() {
     let frame = |_: usize, id: u64| (id == 0).then(|| ContextFrame { latent: &latent, time: 0, pose: &src[0], generated: false });
     let sampler = Sampler::new(&model.manifest().diffusion, 3, Method::Ddim, 0.0).unwrap();
     let warp = sources(&rgb, &depth, &src, &k);
-    let with = Request { plan: &plan, target_time: 1, target_pose: &dst[0], action: &action, seed: 5, warp: &warp[..1], since_observed: 0 };
+    let with = Request { plan: &plan, target_time: 1, target_pose: &dst[0], action: &action, seed: 5, warp: &warp[..1] };
     let without = Request { warp: &[], seed: 6, ..with };
     let both = model.predict(&policy.packing, &[with, without], &frame, &sampler).unwrap().frames;
     for (i, r) in [with, without].into_iter().enumerate() {
@@ -212,33 +212,28 @@ fn a_fused_frame_does_not_depend_on_its_batch() {
     assert!(resampled > 0.05, "the kept latent equals the blend's encoding");
 }
 
-/// The served student's switched head through `Model::predict`: the same
-/// request near an observation and far from one shows two different frames
-/// (the near head's, the far head's) but the memory keeps the same latent in
-/// both, the far head's frame re-encoded (its manifest's `memory_keeps`).
+/// The served student's head pair through `Model::predict`: the memory keeps
+/// another frame than the one shown (its `kept` output re-encoded), and with
+/// sampled latents kept it keeps neither, but the same frame is shown.
 #[test]
-fn a_switched_head_shows_its_near_frame_and_keeps_its_far_one() {
+fn a_head_pair_shows_one_frame_and_keeps_another() {
     use model::pack::ContextFrame;
     use model::{Method, Request, Sampler};
 
     let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../fixtures/variants/worldpack_geometry_fused_1step");
-    let model = Model::load(&dir, RuntimeOptions { provider: Provider::Cpu, threads: 1 }).expect("the student loads");
-    let switch = model.manifest().fusion.as_ref().map(|g| g.inputs.len());
-    assert_eq!(switch, Some(4), "the served student's head is switched");
+    let mut model = Model::load(&dir, RuntimeOptions { provider: Provider::Cpu, threads: 1 }).expect("the student loads");
     let OneStep { cases: WarpCases { k, rgb, depth, src, dst, .. }, latent, policy, plan, action, .. } = one_step(&model);
     let frame = |_: usize, id: u64| (id == 0).then(|| ContextFrame { latent: &latent, time: 0, pose: &src[0], generated: false });
     let sampler = Sampler::new(&model.manifest().diffusion, 1, Method::Ddim, 0.0).unwrap();
     let warp = sources(&rgb, &depth, &src, &k);
-    let near = Request { plan: &plan, target_time: 1, target_pose: &dst[0], action: &action, seed: 5, warp: &warp[..1], since_observed: 0 };
-    let far = Request { since_observed: 1000, ..near };
-    let got = model.predict(&policy.packing, &[near, far], &frame, &sampler).unwrap().frames;
-    let shown_apart = got[0].rgb.iter().zip(&got[1].rgb).map(|(a, b)| a.abs_diff(*b)).max().unwrap();
-    assert!(shown_apart > 2, "near and far show the same frame (largest difference {shown_apart}/255)");
-    let kept_apart = got[0].latent.iter().zip(&got[1].latent).map(|(a, b)| (a - b).abs()).fold(0f32, f32::max);
-    assert!(kept_apart < 1e-4, "the memory keeps different latents near and far ({kept_apart})");
-    // What is kept is the far frame as shown, re-encoded.
-    let shown_far = model::generate::frame_to_tensor(&got[1].rgb, k.width, k.height, &k, k.width, k.height).unwrap().0;
-    let again = model.encode(&shown_far).unwrap().data;
-    let worst = again.iter().zip(&got[0].latent).map(|(a, b)| (a - b).abs()).fold(0f32, f32::max);
-    assert!(worst < 0.05, "the kept latent is not the far frame's: {worst}");
+    let request = Request { plan: &plan, target_time: 1, target_pose: &dst[0], action: &action, seed: 5, warp: &warp[..1] };
+    let got = model.predict(&policy.packing, &[request], &frame, &sampler).unwrap().frames.remove(0);
+    let encoded = |rgb: &[u8]| model.encode(&model::generate::frame_to_tensor(rgb, k.width, k.height, &k, k.width, k.height).unwrap().0).unwrap().data;
+    let apart = |a: &[f32], b: &[f32]| a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0f32, f32::max);
+    let shown_again = encoded(&got.rgb);
+    assert!(apart(&got.latent, &shown_again) > 0.05, "the memory keeps the frame shown");
+    model.keep_sampled_latents(true);
+    let sampled = model.predict(&policy.packing, &[request], &frame, &sampler).unwrap().frames.remove(0);
+    assert_eq!(sampled.rgb, got.rgb, "the frame shown does not depend on what the memory keeps");
+    assert!(apart(&sampled.latent, &got.latent) > 0.05, "with sampled latents kept, the latent is still the re-encoded kept frame");
 }

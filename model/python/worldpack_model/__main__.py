@@ -1,5 +1,5 @@
 """`python -m worldpack_model <stage>`: train-ae, encode, train, variants, distill, export, paper-scale, recover,
-fusion-train, fusion-export, fusion-switch.
+fusion-train, fusion-export, fusion-pair.
 See docs/model.md for the whole recipe."""
 
 from __future__ import annotations
@@ -145,16 +145,12 @@ def main() -> None:
     p.add_argument("--out", type=Path, required=True, help="the new model folder (its name becomes the model's)")
     p.add_argument("--data", type=Path, help="a fusion-data folder whose last examples become the references")
 
-    p = sub.add_parser("fusion-switch", help="copy a fused model folder with its head switched: another model's head near "
-                       "an observation, its own after (fusion.py SwitchedHeads)")
-    p.add_argument("--far", type=Path, required=True, help="the fused model folder to copy; its head runs far from observations")
-    p.add_argument("--near", type=Path, required=True, help="a fused model folder whose head runs near observations")
-    p.add_argument("--near-steps", type=int, required=True,
-                   help="the near head runs while fewer than this many frames were generated since the last observed one")
-    p.add_argument("--out", type=Path, required=True, help="the new model folder (may be --far itself)")
+    p = sub.add_parser("fusion-pair", help="copy a fused model folder with a head pair: another model's head makes the "
+                       "frame shown, its own the frame the memory keeps (fusion.py HeadPair)")
+    p.add_argument("--kept", type=Path, required=True, help="the fused model folder to copy; its head makes the frame kept")
+    p.add_argument("--shown", type=Path, required=True, help="a fused model folder whose head makes the frame shown")
+    p.add_argument("--out", type=Path, required=True, help="the new model folder (may be --kept itself)")
     p.add_argument("--data", type=Path, help="a fusion-data folder whose last examples become the references")
-    p.add_argument("--keep-far", action="store_true",
-                   help="the memory keeps the far head's frame even where the near head's is shown (a second output)")
 
     a = ap.parse_args()
     import torch
@@ -180,10 +176,10 @@ def main() -> None:
         from . import fusion
 
         fusion.export(a.run, a.model, a.out, a.data)
-    elif a.stage == "fusion-switch":
+    elif a.stage == "fusion-pair":
         from . import fusion
 
-        fusion.switch(a.far, a.near, a.near_steps, a.out, a.data, a.keep_far)
+        fusion.pair(a.kept, a.shown, a.out, a.data)
     elif a.stage == "train-ae":
         train.train_autoencoder(a.data, a.run, a.steps, a.batch, a.lr, a.device, a.minutes)
     elif a.stage == "encode":

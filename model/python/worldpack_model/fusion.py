@@ -38,7 +38,6 @@ from .losses import gradient_difference
 from .train import resume
 
 INPUTS = ("predicted", "reference", "landed")  # the order model/src/manifest.rs expects
-SINCE_OBSERVED = "since_observed"  # a switched head's fourth input: frames generated since the last observed one
 CORRECTION = 0.25  # the largest per-channel correction beyond the blend, in [-1, 1] units
 
 
@@ -62,33 +61,26 @@ class FusionHead(nn.Module):
         return w * reference + (1 - w) * predicted + CORRECTION * torch.tanh(o[:, 1:])
 
 
-class SwitchedHeads(nn.Module):
-    """Two trained heads and the rule between them: `near` while fewer than
-    `steps` frames were generated since the last observed frame, `far` after.
-    Near an observation the model's frame is still close to the truth and a
-    head trained for the per-frame error is best; farther out, frames drift
-    and blur compounds through the memory, and a head trained to keep edges
-    (the gradient difference term) holds the world better.
+class HeadPair(nn.Module):
+    """Two trained heads on the same inputs: `shown` makes the frame the
+    model shows, `kept` the frame the memory keeps (the runtime re-encodes
+    it as the context of the frames after it; model/src/predict.rs). A frame
+    shown is judged on its own, one kept by the frames conditioned on it, and
+    different losses win each: MSE for the one, MSE with the gradient
+    difference term, which keeps edges, for the other."""
 
-    With `keep_far`, a second output `kept` is always the far head's frame:
-    the frame shown is judged on its own, the frame the memory keeps by the
-    frames conditioned on it later (model/src/predict.rs re-encodes it)."""
-
-    def __init__(self, near: FusionHead, far: FusionHead, steps: int, keep_far: bool = False):
+    def __init__(self, shown: FusionHead, kept: FusionHead):
         super().__init__()
-        self.near, self.far, self.steps, self.keep_far = near, far, steps, keep_far
+        self.shown, self.kept = shown, kept
 
-    def forward(self, predicted, reference, landed, since_observed):
-        use_near = (since_observed < self.steps).reshape(-1, 1, 1, 1)
-        far = self.far(predicted, reference, landed)
-        shown = torch.where(use_near, self.near(predicted, reference, landed), far)
-        return (shown, far) if self.keep_far else shown
+    def forward(self, predicted, reference, landed):
+        return self.shown(predicted, reference, landed), self.kept(predicted, reference, landed)
 
 
 def head_of(model: Path) -> tuple[FusionHead, dict]:
     """The fusion head of an exported model folder, rebuilt from its
     fusion.onnx (the initializers keep the PyTorch names), and its manifest
-    entry. A switched head is refused: switch plain heads."""
+    entry. A head pair is refused: pair single heads."""
     import onnx
     from onnx import numpy_helper
 
@@ -96,8 +88,8 @@ def head_of(model: Path) -> tuple[FusionHead, dict]:
     spec = manifest.get("fusion")
     if spec is None:
         raise SystemExit(f"{model}: has no fusion head")
-    if "switch" in spec:
-        raise SystemExit(f"{model}: its head is switched already; give the models its heads came from")
+    if "pair" in spec:
+        raise SystemExit(f"{model}: its head is a pair already; give the models its heads came from")
     proto = onnx.load(model / spec["file"])
     weights = {i.name: torch.from_numpy(numpy_helper.to_array(i).copy()) for i in proto.graph.initializer}
     # The body's 3x3 convolutions in order; the 1x1 output convolution has no dilation to read.
@@ -265,52 +257,43 @@ def export(run: Path, model: Path, out: Path, data: Path | None = None) -> None:
     print(f"wrote {out} ({manifest['fusion']['parameters']} fusion parameters)")
 
 
-def switch(far: Path, near: Path, steps: int, out: Path, data: Path | None = None, keep_far: bool = False) -> None:
-    """A copy of the model folder `far` at `out` whose head is `near`'s head
-    while fewer than `steps` frames were generated since the last observed
-    one and its own after (`SwitchedHeads`); the graph takes a fourth input,
-    `since_observed`, which the runtime fills (model/src/predict.rs)."""
+def pair(kept: Path, shown: Path, out: Path, data: Path | None = None) -> None:
+    """A copy of the model folder `kept` at `out` whose head is a `HeadPair`:
+    the frame shown is `shown`'s head's, the frame the memory keeps is
+    `kept`'s own head's (the graph's second output, `kept`)."""
     from .export import to_onnx
     import onnx
     import tempfile
 
-    if steps < 1:
-        raise SystemExit(f"--near-steps: must be at least 1, got {steps}")
-    far_head, far_spec = head_of(far)
-    near_head, near_spec = head_of(near)
-    manifest = json.loads((far / "manifest.json").read_text())
+    kept_head, kept_spec = head_of(kept)
+    shown_head, shown_spec = head_of(shown)
+    manifest = json.loads((kept / "manifest.json").read_text())
     h, w = manifest["image"]["height"], manifest["image"]["width"]
-    near_image = json.loads((near / "manifest.json").read_text())["image"]
-    if (near_image["height"], near_image["width"]) != (h, w):
-        raise SystemExit(f"--near: {near} makes {near_image['width']}x{near_image['height']} frames, {far} {w}x{h}")
+    shown_image = json.loads((shown / "manifest.json").read_text())["image"]
+    if (shown_image["height"], shown_image["width"]) != (h, w):
+        raise SystemExit(f"--shown: {shown} makes {shown_image['width']}x{shown_image['height']} frames, {kept} {w}x{h}")
     with tempfile.TemporaryDirectory() as tmp:
         staged = Path(tmp) / out.name
-        shutil.copytree(far, staged)
-        heads = SwitchedHeads(near_head, far_head, steps, keep_far).eval()
-        args = reference_images(data, h, w) + (torch.tensor([0.0, float(steps)]),)  # one item on each side of the switch
-        outputs = ("image", "kept") if keep_far else ("image",)
-        onnx.save(to_onnx(heads, args, list(INPUTS) + [SINCE_OBSERVED], list(outputs)), staged / far_spec["file"])
-        folder = staged / "reference" / "fusion"
+        shutil.copytree(kept, staged)
+        heads = HeadPair(shown_head, kept_head).eval()
+        args = reference_images(data, h, w)
+        outputs = ("image", "kept")
+        onnx.save(to_onnx(heads, args, list(INPUTS), list(outputs)), staged / kept_spec["file"])
         with torch.no_grad():
             got = heads(*args)
-        got = got if keep_far else (got,)
-        for name, t in zip(INPUTS + (SINCE_OBSERVED,) + outputs, args + got):
-            np.save(folder / f"{name}.npy", t.numpy().astype(np.float32))
-        spec = {k: v for k, v in far_spec.items() if k not in ("trained", "architecture", "parameters")}
-        spec["inputs"] = far_spec["inputs"] + [{"name": SINCE_OBSERVED, "shape": ["batch"], "dtype": "float32",
-                                                "meaning": "frames generated since the last observed one (0: the newest stored frame was observed)"}]
-        spec["architecture"] = f"two heads switched per item: `near` while since_observed < {steps}, `far` after; each: {far_spec['architecture']}"
-        if keep_far:
-            spec["outputs"] = far_spec["outputs"] + [dict(far_spec["outputs"][0], name="kept",
-                                                          meaning="the frame the memory keeps (re-encoded): the far head's, at any distance")]
-        spec["parameters"] = far_spec["parameters"] + near_spec["parameters"]
-        spec["switch"] = {"near_steps": steps, "memory_keeps": "far" if keep_far else "shown",
-                          "near": {"model": near.name, "trained": near_spec.get("trained")},
-                          "far": {"model": far.name, "trained": far_spec.get("trained")}}
+        for name, t in zip(INPUTS + outputs, args + got):
+            np.save(staged / "reference" / "fusion" / f"{name}.npy", t.numpy().astype(np.float32))
+        spec = {k: v for k, v in kept_spec.items() if k not in ("trained", "architecture", "parameters")}
+        spec["outputs"] = [kept_spec["outputs"][0], dict(kept_spec["outputs"][0], name="kept",
+                                                         meaning="the frame the memory keeps (re-encoded as later frames' context), RGB")]
+        spec["architecture"] = f"two heads on the same inputs, one for the frame shown and one for the frame kept; each: {kept_spec['architecture']}"
+        spec["parameters"] = kept_spec["parameters"] + shown_spec["parameters"]
+        spec["pair"] = {"shown": {"model": shown.name, "trained": shown_spec.get("trained")},
+                        "kept": {"model": kept.name, "trained": kept_spec.get("trained")}}
         manifest["name"] = out.name
         manifest["fusion"] = spec
         (staged / "manifest.json").write_text(json.dumps(manifest, indent=1))
         if out.exists():
             shutil.rmtree(out)
         shutil.copytree(staged, out)
-    print(f"wrote {out}: {near.name}'s head below {steps} frames generated since an observation, {far.name}'s after")
+    print(f"wrote {out}: shows {shown.name}'s head's frame, keeps {kept.name}'s")
