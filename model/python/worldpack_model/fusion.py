@@ -18,7 +18,9 @@ far from both.
 
 `fusion-export` writes a copy of the model with `fusion.onnx` added and the
 manifest's `fusion` entry; the Rust runtime runs the head after the decoder
-in `Model::predict` (model/src/predict.rs).
+in `Model::predict` (model/src/predict.rs). `fusion-pair` joins two exported
+heads into one graph (`HeadPair`): one makes the frame shown, the other the
+frame the memory keeps.
 """
 
 from __future__ import annotations
