@@ -62,7 +62,7 @@ struct Run<'a> {
     observed: FrameMemory,
     latents: Vec<Vec<f32>>,
     previous: Option<ContextPlan>,
-    /// The first generated frame (the return leg's start).
+    /// The first generated frame (the return leg's start): the frames before it are observed.
     start: usize,
     next: usize,
     end: usize,
@@ -282,7 +282,7 @@ pub fn rollout_as(
                     // Frames from the returning point on are the model's own.
                     let frame = |j: usize, id: u64| {
                         let r = &runs[chunk[j]];
-                        let generated = id as usize >= r.traj.entry.returning_point.clamp(1, r.traj.len());
+                        let generated = id as usize >= r.start;
                         r.latents.get(id as usize).map(|l| ContextFrame { latent: l, time: id, pose: &r.traj.poses[id as usize], generated })
                     };
                     let mut prediction = model.predict(&policy.packing, &requests, &frame, sampler)?;

@@ -261,10 +261,16 @@ fn the_respacing_matches_numpy() {
 }
 
 fn copy_fixture(name: &str) -> PathBuf {
+    copy_files_of(&fixture(), name)
+}
+
+/// A temporary folder named after `name` with the files (not the reference
+/// folders) of the model folder `from`: enough to load it.
+fn copy_files_of(from: &Path, name: &str) -> PathBuf {
     let dir = std::env::temp_dir().join(format!("worldpack-model-{name}-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).unwrap();
-    for entry in std::fs::read_dir(fixture()).unwrap() {
+    for entry in std::fs::read_dir(from).unwrap() {
         let p = entry.unwrap().path();
         if p.is_file() {
             std::fs::copy(&p, dir.join(p.file_name().unwrap())).unwrap();
@@ -405,15 +411,7 @@ fn a_head_pair_shows_one_head_and_keeps_the_other() {
     assert!(apart(&outputs[0], &alone) < 1e-5, "the frame shown is {} from the shown model's head", apart(&outputs[0], &alone));
     assert!(apart(&outputs[1], &outputs[0]) > 0.01, "the frame kept is the frame shown");
 
-    let copy = std::env::temp_dir().join(format!("worldpack-model-pair-name-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&copy);
-    std::fs::create_dir_all(&copy).unwrap();
-    for entry in std::fs::read_dir(&dir).unwrap() {
-        let p = entry.unwrap().path();
-        if p.is_file() {
-            std::fs::copy(&p, copy.join(p.file_name().unwrap())).unwrap();
-        }
-    }
+    let copy = copy_files_of(&dir, "pair-name");
     let mut wrong = manifest.clone();
     wrong["fusion"]["outputs"][1]["name"] = "memory".into();
     std::fs::write(copy.join("manifest.json"), wrong.to_string()).unwrap();

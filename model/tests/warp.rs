@@ -152,6 +152,11 @@ struct OneStep {
     action: [f32; 7],
 }
 
+/// `rgb`, a frame at the reference camera `k`, encoded by `model`.
+fn encode_rgb(model: &Model, rgb: &[u8], k: &Intrinsics) -> Vec<f32> {
+    model.encode(&model::generate::frame_to_tensor(rgb, k.width, k.height, k, k.width, k.height).unwrap().0).unwrap().data
+}
+
 fn one_step(model: &Model) -> OneStep {
     use memory::policy::{SelectedFrame, Slot};
     use memory::{ContextPlan, Policy, PolicyKind};
@@ -159,8 +164,7 @@ fn one_step(model: &Model) -> OneStep {
     let cases = warp_cases();
     let k = cases.k;
     let first = cases.rgb[..cases.shape[1] * cases.shape[2] * 3].to_vec();
-    let image = model::generate::frame_to_tensor(&first, k.width, k.height, &k, k.width, k.height).unwrap().0;
-    let latent = model.encode(&image).unwrap().data;
+    let latent = encode_rgb(model, &first, &k);
     let policy = Policy::preset(PolicyKind::WorldPack);
     let layout = model.layout_for(&policy.packing).unwrap();
     let mut slots: Vec<Slot> = layout.slots.iter().flat_map(|s| (0..s.count).map(move |_| Slot { rate: s.rate, frame: None })).collect();
@@ -193,8 +197,7 @@ fn a_fused_frame_does_not_depend_on_its_batch() {
         assert!(worst_px <= 1 && worst_latent < 1e-3, "request {i}: batched and alone differ by {worst_px}/255 and {worst_latent} in the latent");
     }
     // The blended frame's latent is the blend re-encoded.
-    let shown = model::generate::frame_to_tensor(&both[0].rgb, k.width, k.height, &k, k.width, k.height).unwrap().0;
-    let again = model.encode(&shown).unwrap().data;
+    let again = encode_rgb(&model, &both[0].rgb, &k);
     let worst = again.iter().zip(&both[0].latent).map(|(a, b)| (a - b).abs()).fold(0f32, f32::max);
     assert!(worst < 0.05, "the stored latent is not the shown frame's: {worst}");
     // A request whose best source stands at its target's pose shows that source exactly.
@@ -228,9 +231,8 @@ fn a_head_pair_shows_one_frame_and_keeps_another() {
     let warp = sources(&rgb, &depth, &src, &k);
     let request = Request { plan: &plan, target_time: 1, target_pose: &dst[0], action: &action, seed: 5, warp: &warp[..1] };
     let got = model.predict(&policy.packing, &[request], &frame, &sampler).unwrap().frames.remove(0);
-    let encoded = |rgb: &[u8]| model.encode(&model::generate::frame_to_tensor(rgb, k.width, k.height, &k, k.width, k.height).unwrap().0).unwrap().data;
     let apart = |a: &[f32], b: &[f32]| a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0f32, f32::max);
-    let shown_again = encoded(&got.rgb);
+    let shown_again = encode_rgb(&model, &got.rgb, &k);
     assert!(apart(&got.latent, &shown_again) > 0.05, "the memory keeps the frame shown");
     model.keep_sampled_latents(true);
     let sampled = model.predict(&policy.packing, &[request], &frame, &sampler).unwrap().frames.remove(0);
