@@ -22,7 +22,12 @@ LoopNav protocol through the API, where a geometry model can warp what was seen.
 One walk is one world and a few dozen frames. `--worlds 1-24` walks the same
 path in each of those synthetic worlds (pictures for the first) and adds the
 way back per world and, for every row after the first, its mean difference
-from the first row with a 95% bootstrap interval over worlds.
+from the first row with a 95% bootstrap interval over worlds. One walk is also
+one draw of the sampler's noise: `--draws 16` walks each world 16 times with
+other step seeds, and with a single world the interval is over those draws
+(is a difference the model's, or the noise's?). A row may name its own sampler
+steps (`NAME=FOLDER:POLICY:STEPS`), so a 10-step model and a 5-step one can be
+walked side by side.
 
 Standard library, NumPy and OpenCV only (the test venv)."""
 
@@ -77,10 +82,11 @@ def png_to_rgb(png: bytes) -> np.ndarray:
 
 
 OBSERVABLE = ("look around", "out")
+SEEDS_PER_DRAW = 1000  # a draw's step seeds: draw 0 takes 1, 2, ...; draw k takes 1000 k + 1, ...
 
 
 def run_row(binary: str, model: str, policy: str, seed: int, steps: int, method: str, observe_outbound: bool = False,
-            covisible: bool = False) -> dict:
+            covisible: bool = False, draw: int = 0) -> dict:
     port = free_port()
     with tempfile.TemporaryDirectory() as tmp:
         server = subprocess.Popen([binary, "serve", "--model", model, "--store", f"{tmp}/walk.redb", "--addr", f"127.0.0.1:{port}",
@@ -100,7 +106,8 @@ def run_row(binary: str, model: str, policy: str, seed: int, steps: int, method:
             rows = []
             for phase, action in walk():
                 observe = observe_outbound and phase in OBSERVABLE
-                r = call(f"{base}/v1/sessions/{session}/step", {"action": action, "seed": len(rows) + 1, "observe": observe})
+                r = call(f"{base}/v1/sessions/{session}/step", {"action": action, "seed": SEEDS_PER_DRAW * draw + len(rows) + 1,
+                                                                      "observe": observe})
                 truth = r["truth"] or {"psnr_db": None, "ssim": None}  # an observed frame is the truth
                 rows.append({"index": r["index"], "phase": phase, "psnr_db": truth["psnr_db"], "ssim": truth["ssim"],
                              "warp_frames": r["selection"]["warp_frames"]})
@@ -172,25 +179,41 @@ def worlds_of(spec: str) -> list[int]:
     return seeds
 
 
+def row_of(spec: str, default_steps: int) -> tuple[str, str, str, int]:
+    """`NAME=FOLDER:POLICY` or `NAME=FOLDER:POLICY:STEPS` -> (name, folder, policy, steps)."""
+    name, _, rest = spec.partition("=")
+    model, _, policy = rest.rpartition(":")
+    steps = default_steps
+    if policy.isdigit():
+        steps = int(policy)
+        model, _, policy = model.rpartition(":")
+    if not (name and model and policy) or steps < 1:
+        sys.exit(f"--row {spec!r}: expected NAME=MODEL_FOLDER:POLICY or NAME=MODEL_FOLDER:POLICY:STEPS (STEPS >= 1)")
+    return name, model, policy, steps
+
+
 def way_back(steps: list[dict]) -> float:
     return float(np.mean([s["psnr_db"] for s in steps if s["phase"] == "back"]))
 
 
-def paired(first: list[float], other: list[float], draws: int = 2000) -> dict:
-    """Mean of other - first over worlds, a 95% bootstrap interval, and how many worlds it wins."""
+def paired(first: list[float], other: list[float], resamples: int = 2000) -> dict:
+    """Mean of other - first over units (worlds, or one world's draws), a 95% bootstrap interval, and the wins."""
     d = np.asarray(other) - np.asarray(first)
     rng = np.random.default_rng(0)
-    means = d[rng.integers(0, len(d), (draws, len(d)))].mean(axis=1)
+    means = d[rng.integers(0, len(d), (resamples, len(d)))].mean(axis=1)
     return {"diff_db": round(float(d.mean()), 2), "ci95": [round(float(np.percentile(means, q)), 2) for q in (2.5, 97.5)],
-            "wins": int((d > 0).sum()), "worlds": len(d)}
+            "wins": int((d > 0).sum()), "units": len(d)}
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--row", action="append", required=True, help="NAME=MODEL_FOLDER:POLICY (repeatable)")
+    ap.add_argument("--row", action="append", required=True, help="NAME=MODEL_FOLDER:POLICY[:STEPS] (repeatable; STEPS overrides --steps for this row)")
     ap.add_argument("--bin", default="target/release/worldpack")
     ap.add_argument("--seed", type=int, default=3, help="the synthetic world (see --worlds for many)")
     ap.add_argument("--worlds", help="walk in each of these worlds: a range A-B or a list A,B,C (overrides --seed)")
+    ap.add_argument("--draws", type=int, default=1,
+                    help="walk each world this many times, each with other seeds for the sampler's noise (draw 0 is "
+                         "the single walk's); a world's way back is the mean over its draws")
     ap.add_argument("--steps", type=int, default=10, help="sampler steps per frame")
     ap.add_argument("--method", default="ddim")
     ap.add_argument("--covisible", action="store_true", help="serve with --covisible, as ./scripts/serve.sh does")
@@ -199,21 +222,20 @@ def main() -> None:
                     help="observe the look-around and the way out (the world's frames and depth); generate only the way back")
     a = ap.parse_args()
     worlds = worlds_of(a.worlds) if a.worlds else [a.seed]
-    rows = []
-    for spec in a.row:
-        name, _, rest = spec.partition("=")
-        model, _, policy = rest.rpartition(":")
-        if not (name and model and policy):
-            sys.exit(f"--row {spec!r}: expected NAME=MODEL_FOLDER:POLICY")
-        rows.append((name, model, policy))
+    if a.draws < 1:
+        sys.exit(f"--draws {a.draws}: expected at least 1")
+    rows = [row_of(spec, a.steps) for spec in a.row]
     results, per_world = {}, {}
-    for name, model, policy in rows:
-        print(f"{name}: {model} with {policy}", flush=True)
+    for name, model, policy, steps in rows:
+        print(f"{name}: {model} with {policy}, {steps} sampler steps", flush=True)
         for k, seed in enumerate(worlds):
-            r = run_row(a.bin, model, policy, seed, a.steps, a.method, a.observe_outbound, a.covisible)
-            per_world.setdefault(name, []).append(way_back(r["steps"]))
-            if k == 0:
-                results[name] = r
+            backs = []
+            for draw in range(a.draws):
+                r = run_row(a.bin, model, policy, seed, steps, a.method, a.observe_outbound, a.covisible, draw)
+                backs.append(way_back(r["steps"]))
+                if k == 0 and draw == 0:
+                    results[name] = r
+            per_world.setdefault(name, []).append(backs)
     a.out.parent.mkdir(parents=True, exist_ok=True)
     summary = {}
     for name, r in results.items():
@@ -225,18 +247,23 @@ def main() -> None:
         print(f"{name:>12}: " + ", ".join(f"{p} {v:.2f} dB" for p, v in summary[name].items()))
     first = rows[0][0]
     across = None
-    if len(worlds) > 1:
-        across = {"worlds": worlds, "way_back_db": {n: [round(v, 2) for v in vs] for n, vs in per_world.items()},
-                  "mean_way_back_db": {n: round(float(np.mean(vs)), 2) for n, vs in per_world.items()},
-                  f"against_{first}": {n: paired(per_world[first], vs) for n, vs in per_world.items() if n != first}}
-        print(f"the way back over {len(worlds)} worlds ({worlds[0]}..{worlds[-1]}):")
-        for n, vs in per_world.items():
+    if len(worlds) > 1 or a.draws > 1:
+        # The unit of the interval: a world (the mean of its draws), or with one world, a draw of its noise.
+        unit = "worlds" if len(worlds) > 1 else "draws"
+        units = {n: [float(np.mean(b)) for b in bs] if unit == "worlds" else bs[0] for n, bs in per_world.items()}
+        across = {"worlds": worlds, "draws": a.draws, "unit": unit,
+                  "way_back_db": {n: [[round(v, 2) for v in b] for b in bs] for n, bs in per_world.items()},
+                  "mean_way_back_db": {n: round(float(np.mean(vs)), 2) for n, vs in units.items()},
+                  f"against_{first}": {n: paired(units[first], vs) for n, vs in units.items() if n != first}}
+        print(f"the way back over {len(worlds)} world(s) ({worlds[0]}..{worlds[-1]}), {a.draws} draw(s) each, per {unit[:-1]}:")
+        for n, vs in units.items():
             line = f"{n:>12}: {np.mean(vs):.2f} dB"
             if n != first:
                 p = across[f"against_{first}"][n]
-                line += f", {p['diff_db']:+.2f} [{p['ci95'][0]:+.2f}, {p['ci95'][1]:+.2f}] against {first}, ahead in {p['wins']} of {p['worlds']}"
+                line += f", {p['diff_db']:+.2f} [{p['ci95'][0]:+.2f}, {p['ci95'][1]:+.2f}] against {first}, ahead in {p['wins']} of {p['units']} {unit}"
             print(line)
     record = {"command": " ".join(sys.argv), "seed": worlds[0], "sampler": f"{a.method}, {a.steps} steps",
+              "steps_per_row": {name: steps for name, _, _, steps in rows},
               "observe_outbound": a.observe_outbound,
               "mean_psnr_db_by_phase": summary,
               "rows": {n: {k: v for k, v in r.items() if k not in ("frames", "truths")} for n, r in results.items()}}
