@@ -15,6 +15,7 @@ repository for Triton's own onnxruntime backend (docs/deployment.md).
 
 import argparse
 import json
+import logging
 import pathlib
 import signal
 import sys
@@ -26,6 +27,10 @@ from pytriton.model_config import DynamicBatcher, ModelConfig, Tensor
 from pytriton.triton import Triton, TritonConfig
 
 from repository import graphs  # one naming of the graphs for both ways of serving
+
+# PyTriton's loggers that tell its start model by model (not its server module, whose DEBUG
+# prints the whole environment).
+START_LOGGERS = ("pytriton.triton", "pytriton.models.manager", "pytriton.client.utils")
 
 
 def item_dims(spec):
@@ -65,7 +70,16 @@ def main():
     ap.add_argument("--queue-delay-us", type=int, default=1000, help="how long Triton waits to fill a batch (default 1000 µs)")
     ap.add_argument("--threads", type=int, default=1, help="ONNX Runtime intra-op threads per graph (default 1)")
     ap.add_argument("--gpu", action="store_true", help="run the graphs with the CUDA provider")
+    ap.add_argument("--exit-timeout-secs", type=int, default=30,
+                    help="on SIGTERM, how long Triton waits for calls in flight before it stops (default 30, as Triton's)")
     args = ap.parse_args()
+    # The start on stderr, step by step: a start that hangs leaves a trail.
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    for name in START_LOGGERS:
+        logging.getLogger(name).setLevel(logging.DEBUG)
+    # SIGTERM unwinds `with Triton(...)`, which stops tritonserver and removes its shared
+    # memory and its workspace (a copy of the server's binaries); a kill leaves both behind.
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))
 
     manifest_path = args.model / "manifest.json"
     if not manifest_path.is_file():
@@ -77,7 +91,8 @@ def main():
     providers = ["CUDAExecutionProvider", "CPUExecutionProvider"] if args.gpu else ["CPUExecutionProvider"]
 
     config = TritonConfig(http_port=args.http_port, grpc_port=args.grpc_port, metrics_port=args.metrics_port,
-                          http_address="127.0.0.1", grpc_address="127.0.0.1")
+                          http_address="127.0.0.1", grpc_address="127.0.0.1",
+                          exit_timeout_secs=args.exit_timeout_secs)
     with Triton(config=config) as triton:
         for role, spec in graphs(manifest):
             session = ort.InferenceSession(str(args.model / spec["file"]), options, providers=providers)
@@ -91,7 +106,8 @@ def main():
                 strict=True,
             )
         print(f"serving {manifest['name']} on http://127.0.0.1:{args.http_port} (metrics on :{args.metrics_port})", flush=True)
-        signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))
+        for name in START_LOGGERS:
+            logging.getLogger(name).setLevel(logging.INFO)
         triton.serve()
 
 

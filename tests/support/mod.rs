@@ -239,6 +239,9 @@ unsafe extern "C" {
 /// How long a Triton host may take to load a model folder's graphs.
 pub const TRITON_START: Duration = Duration::from_secs(240);
 
+/// How long a Triton host may take to stop tidily (it takes ~8 s).
+pub const TRITON_STOP: Duration = Duration::from_secs(30);
+
 /// The Triton tests run one at a time: each host loads every graph in its
 /// own Python and Triton processes, and several at once beside the other
 /// servers starve a small CI machine.
@@ -285,6 +288,7 @@ impl TritonHost {
             .arg(root.join("serving/triton/host.py"))
             .arg("--model").arg(root.join(model))
             .args(["--http-port", &http.to_string(), "--grpc-port", &grpc.to_string(), "--metrics-port", &metrics.to_string()])
+            .args(["--exit-timeout-secs", "2"]) // nothing in flight is worth waiting for when a test stops it
             .stdout(Stdio::piped())
             .stderr(std::fs::File::create(&log).unwrap())
             .process_group(0)
@@ -306,8 +310,7 @@ impl TritonHost {
         match heard.recv_timeout(TRITON_START) {
             Ok(stdout) => Ok(TritonHost { child, ports: [http, grpc, metrics], _stdout: stdout }),
             Err(waited) => {
-                unsafe { libc_kill(-(child.id() as i32), 9) };
-                let _ = child.wait();
+                stop_group(&mut child);
                 let text = std::fs::read_to_string(&log).unwrap_or_default();
                 let tail: Vec<&str> = text.lines().rev().take(15).collect::<Vec<_>>().into_iter().rev().collect();
                 let how = match waited {
@@ -332,10 +335,29 @@ impl TritonHost {
             .unwrap_or_else(|| panic!("no {prefix} in Triton's metrics"))
     }
 
+    /// SIGTERM first, so that the host stops tritonserver and removes its
+    /// shared memory and workspace (a kill leaves them in /dev/shm and
+    /// ~/.cache/pytriton, ~20 MB a start); the whole group is killed after.
     pub fn stop(&mut self) {
-        unsafe { libc_kill(-(self.child.id() as i32), 9) }; // the whole group: python and tritonserver
-        let _ = self.child.wait();
+        stop_group(&mut self.child);
     }
+}
+
+/// SIGTERM to a process group's leader, up to [`TRITON_STOP`] to exit, then
+/// SIGKILL to the whole group (python and tritonserver).
+fn stop_group(child: &mut Child) {
+    let pid = child.id() as i32;
+    unsafe { libc_kill(pid, 15) };
+    let deadline = std::time::Instant::now() + TRITON_STOP;
+    while matches!(child.try_wait(), Ok(None)) {
+        if std::time::Instant::now() > deadline {
+            eprintln!("the Triton host {pid} did not stop within {TRITON_STOP:?} of SIGTERM; killing its group");
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    unsafe { libc_kill(-pid, 9) };
+    let _ = child.wait();
 }
 
 impl Drop for TritonHost {
