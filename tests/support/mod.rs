@@ -256,6 +256,7 @@ pub fn triton_alone() -> std::sync::MutexGuard<'static, ()> {
 /// group on drop.
 pub struct TritonHost {
     child: Child,
+    stopped: bool,
     pub ports: [u16; 3],
     _stdout: BufReader<std::process::ChildStdout>,
 }
@@ -308,7 +309,7 @@ impl TritonHost {
             let _ = said.send(stdout);
         });
         match heard.recv_timeout(TRITON_START) {
-            Ok(stdout) => Ok(TritonHost { child, ports: [http, grpc, metrics], _stdout: stdout }),
+            Ok(stdout) => Ok(TritonHost { child, stopped: false, ports: [http, grpc, metrics], _stdout: stdout }),
             Err(waited) => {
                 stop_group(&mut child);
                 let text = std::fs::read_to_string(&log).unwrap_or_default();
@@ -339,7 +340,10 @@ impl TritonHost {
     /// shared memory and workspace (a kill leaves them in /dev/shm and
     /// ~/.cache/pytriton, ~20 MB a start); the whole group is killed after.
     pub fn stop(&mut self) {
-        stop_group(&mut self.child);
+        if !self.stopped {
+            stop_group(&mut self.child); // once: a reaped pid may be another process's by now
+            self.stopped = true;
+        }
     }
 }
 
