@@ -55,15 +55,7 @@ impl Server {
 
     /// Sends SIGTERM and waits up to `within` for the process to exit; its exit status, None if it did not.
     pub fn terminate(&mut self, within: Duration) -> Option<std::process::ExitStatus> {
-        unsafe { libc_kill(self.child.id() as i32, 15) };
-        let deadline = std::time::Instant::now() + within;
-        while std::time::Instant::now() < deadline {
-            if let Some(status) = self.child.try_wait().unwrap() {
-                return Some(status);
-            }
-            std::thread::sleep(Duration::from_millis(20));
-        }
-        None
+        terminate(&mut self.child, within)
     }
 
     /// Reads what the server wrote to standard output after its first line.
@@ -347,18 +339,25 @@ impl TritonHost {
     }
 }
 
+/// Sends `child` SIGTERM and waits up to `within` for it to exit; its exit status, None if it did not.
+pub fn terminate(child: &mut Child, within: Duration) -> Option<std::process::ExitStatus> {
+    unsafe { libc_kill(child.id() as i32, 15) };
+    let deadline = std::time::Instant::now() + within;
+    while std::time::Instant::now() < deadline {
+        if let Some(status) = child.try_wait().unwrap() {
+            return Some(status);
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    None
+}
+
 /// SIGTERM to a process group's leader, up to [`TRITON_STOP`] to exit, then
 /// SIGKILL to the whole group (python and tritonserver).
 fn stop_group(child: &mut Child) {
     let pid = child.id() as i32;
-    unsafe { libc_kill(pid, 15) };
-    let deadline = std::time::Instant::now() + TRITON_STOP;
-    while matches!(child.try_wait(), Ok(None)) {
-        if std::time::Instant::now() > deadline {
-            eprintln!("the Triton host {pid} did not stop within {TRITON_STOP:?} of SIGTERM; killing its group");
-            break;
-        }
-        std::thread::sleep(Duration::from_millis(100));
+    if terminate(child, TRITON_STOP).is_none() {
+        eprintln!("the Triton host {pid} did not stop within {TRITON_STOP:?} of SIGTERM; killing its group");
     }
     unsafe { libc_kill(-pid, 9) };
     let _ = child.wait();
