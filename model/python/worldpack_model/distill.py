@@ -45,7 +45,7 @@ from .config import LAYOUTS
 from .diffusion import Schedule
 from .losses import gradient_difference
 from .recipe import ContextAugmenter, Recipe
-from .train import load_autoencoder, log, optimise, pick_device, run_config, save
+from .train import load_autoencoder, load_optimiser, log, optimise, pick_device, run_config, save
 from .warp import batch_warp
 
 
@@ -131,8 +131,7 @@ def distill(data: Path, run: Path, policy: str, grid_text: str, teacher_steps: i
         # A checkpoint moved between machines may carry only its EMA weights.
         student.load_state_dict(saved.get("model", saved["ema"]))
         ema.load_state_dict(saved["ema"])
-        if "opt" in saved:
-            opt.load_state_dict(saved["opt"])
+        load_optimiser(opt, saved)
         step = saved["step"]
         print(f"resuming {ckpt.name} at step {step}")
 

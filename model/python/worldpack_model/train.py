@@ -51,6 +51,20 @@ def save(path: Path, **state) -> None:
     tmp.replace(path)  # a crash mid-save never leaves a torn checkpoint
 
 
+def load_optimiser(opt: torch.optim.Optimizer, state: dict) -> bool:
+    """Restores `opt`'s moments from a checkpoint's `state`, keeping the
+    learning rates `opt` was built with: a resumed run takes the `--lr` it is
+    given, not the one it was saved with. False when the checkpoint has none
+    (recovered from an export: the weights survive, the moments do not)."""
+    if "opt" not in state:
+        return False
+    asked = [g["lr"] for g in opt.param_groups]
+    opt.load_state_dict(state["opt"])
+    for group, lr in zip(opt.param_groups, asked):
+        group["lr"] = lr
+    return True
+
+
 def resume(ckpt: Path, model: torch.nn.Module, opt: torch.optim.Optimizer, what: str, device="cpu", key: str = "model") -> int:
     """Loads `model` (saved under `key`) and its optimiser from `ckpt` when
     it exists; returns the step it was saved at (0 without a checkpoint)."""
@@ -58,9 +72,7 @@ def resume(ckpt: Path, model: torch.nn.Module, opt: torch.optim.Optimizer, what:
         return 0
     state = torch.load(ckpt, map_location=device, weights_only=False)
     model.load_state_dict(state[key])
-    if "opt" in state:
-        opt.load_state_dict(state["opt"])
-    else:  # recovered from an export (`recover`): the weights survive, the optimiser's moments do not
+    if not load_optimiser(opt, state):
         print(f"{ckpt.name} has no optimiser state: AdamW starts afresh")
     print(f"resuming {what} at step {state['step']}")
     return state["step"]
@@ -221,9 +233,7 @@ def train_cdit(data: Path, run: Path, policy: str, steps: int, batch: int, lr: f
         origin = state.get("init_from", origin)
         model.load_state_dict(state["model"])
         ema.load_state_dict(state["ema"])
-        if "opt" in state:
-            opt.load_state_dict(state["opt"])
-        else:  # recovered from an export: the weights survive, the optimiser's moments do not
+        if not load_optimiser(opt, state):
             print(f"{ckpt.name} has no optimiser state (recovered from an export): AdamW starts afresh")
         step = state["step"]
         if state.get("memory_focus", 0.0) != memory_focus:
