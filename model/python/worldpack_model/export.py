@@ -62,6 +62,7 @@ class LayoutGraph(nn.Module):
 
 
 def to_onnx(module: nn.Module, args: tuple, names: list[str], outputs: list[str]) -> onnx.ModelProto:
+    module.eval()  # an inference graph (a wrapper such as LayoutGraph is built in training mode)
     batch = torch.export.Dim("batch", min=1, max=1024)
     shapes = [{0: batch} for _ in args]
     fixed = [p for p in inspect.signature(module.forward).parameters.values() if p.kind != p.VAR_POSITIONAL]
