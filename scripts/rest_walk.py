@@ -27,7 +27,10 @@ one draw of the sampler's noise: `--draws 16` walks each world 16 times with
 other step seeds, and with a single world the interval is over those draws
 (is a difference the model's, or the noise's?). A row may name its own sampler
 steps (`NAME=FOLDER:POLICY:STEPS`), so a 10-step model and a 5-step one can be
-walked side by side.
+walked side by side. `--reuse OLD.json:NAME` takes a row from an earlier walk
+of the same worlds and draws instead of walking it again (the same step seeds
+give the same frames), so a candidate is paired against a slow model's cached
+walk; reused rows come first, in the order given.
 
 Standard library, NumPy and OpenCV only (the test venv)."""
 
@@ -192,6 +195,28 @@ def row_of(spec: str, default_steps: int) -> tuple[str, str, str, int]:
     return name, model, policy, steps
 
 
+def reused_row(spec: str, worlds: list[int], draws: int, observe_outbound: bool, covisible: bool) -> tuple[dict, list, int]:
+    """`OLD.json:NAME` -> (that row's first walk, its way back per world and draw, its sampler steps),
+    refused unless the earlier walk covered the same worlds and draws the same way."""
+    path, _, name = spec.rpartition(":")
+    try:
+        old = json.loads(Path(path).read_text())
+        walks = old["rows"]
+        if name not in walks:
+            sys.exit(f"--reuse {spec!r}: {path} has no row {name!r}; it has {', '.join(walks) or 'none'}")
+        across = old.get("across_worlds") or {"worlds": [old["seed"]], "draws": 1,
+                                              "way_back_db": {name: [[round(way_back(walks[name]["steps"]), 2)]]}}
+    except (OSError, ValueError, KeyError, TypeError, AttributeError) as e:
+        sys.exit(f"--reuse {spec!r}: cannot read {path!r} as this script's JSON ({type(e).__name__}: {e})")
+    same = {"worlds": (across["worlds"], worlds), "draws": (across["draws"], draws),
+            "--observe-outbound": (old.get("observe_outbound"), observe_outbound),
+            "--covisible": (old.get("covisible", covisible), covisible)}
+    for what, (theirs, ours) in same.items():
+        if theirs != ours:
+            sys.exit(f"--reuse {spec!r}: that walk had {what} {theirs}, this one {ours}")
+    return walks[name], across["way_back_db"][name], old.get("steps_per_row", {}).get(name)
+
+
 def way_back(steps: list[dict]) -> float:
     return float(np.mean([s["psnr_db"] for s in steps if s["phase"] == "back"]))
 
@@ -207,7 +232,9 @@ def paired(first: list[float], other: list[float], resamples: int = 2000) -> dic
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--row", action="append", required=True, help="NAME=MODEL_FOLDER:POLICY[:STEPS] (repeatable; STEPS overrides --steps for this row)")
+    ap.add_argument("--row", action="append", default=[], help="NAME=MODEL_FOLDER:POLICY[:STEPS] (repeatable; STEPS overrides --steps for this row)")
+    ap.add_argument("--reuse", action="append", default=[], metavar="OLD.json:NAME",
+                    help="a row from an earlier walk of the same worlds and draws, not walked again (repeatable; before the --row rows)")
     ap.add_argument("--bin", default="target/release/worldpack")
     ap.add_argument("--seed", type=int, default=3, help="the synthetic world (see --worlds for many)")
     ap.add_argument("--worlds", help="walk in each of these worlds: a range A-B or a list A,B,C (overrides --seed)")
@@ -224,9 +251,18 @@ def main() -> None:
     worlds = worlds_of(a.worlds) if a.worlds else [a.seed]
     if a.draws < 1:
         sys.exit(f"--draws {a.draws}: expected at least 1")
+    if not a.row and not a.reuse:
+        sys.exit("--row: give at least one row to walk (or --reuse one)")
     rows = [row_of(spec, a.steps) for spec in a.row]
-    results, per_world = {}, {}
+    names = [spec.rpartition(":")[2] for spec in a.reuse] + [name for name, *_ in rows]
+    if len(set(names)) < len(names):
+        sys.exit(f"--row/--reuse: each row needs its own name, got {', '.join(names)}")
+    results, per_world, steps_per_row = {}, {}, {}
+    for spec in a.reuse:
+        name = spec.rpartition(":")[2]
+        results[name], per_world[name], steps_per_row[name] = reused_row(spec, worlds, a.draws, a.observe_outbound, a.covisible)
     for name, model, policy, steps in rows:
+        steps_per_row[name] = steps
         print(f"{name}: {model} with {policy}, {steps} sampler steps", flush=True)
         for k, seed in enumerate(worlds):
             backs = []
@@ -245,7 +281,7 @@ def main() -> None:
                 by_phase.setdefault(s["phase"], []).append(s["psnr_db"])
         summary[name] = {p: round(float(np.mean(v)), 2) for p, v in by_phase.items()}
         print(f"{name:>12}: " + ", ".join(f"{p} {v:.2f} dB" for p, v in summary[name].items()))
-    first = rows[0][0]
+    first = next(iter(results))
     across = None
     if len(worlds) > 1 or a.draws > 1:
         # The unit of the interval: a world (the mean of its draws), or with one world, a draw of its noise.
@@ -263,16 +299,17 @@ def main() -> None:
                 line += f", {p['diff_db']:+.2f} [{p['ci95'][0]:+.2f}, {p['ci95'][1]:+.2f}] against {first}, ahead in {p['wins']} of {p['units']} {unit}"
             print(line)
     record = {"command": " ".join(sys.argv), "seed": worlds[0], "sampler": f"{a.method}, {a.steps} steps",
-              "steps_per_row": {name: steps for name, _, _, steps in rows},
-              "observe_outbound": a.observe_outbound,
+              "steps_per_row": steps_per_row, "observe_outbound": a.observe_outbound, "covisible": a.covisible,
               "mean_psnr_db_by_phase": summary,
               "rows": {n: {k: v for k, v in r.items() if k not in ("frames", "truths")} for n, r in results.items()}}
     if across:
         record["across_worlds"] = across
     a.out.with_suffix(".json").write_text(json.dumps(record, indent=1))
     curve(results, a.out.with_suffix(".png"))
-    strip(results, Path(f"{a.out}-strip.png"))
-    print(f"wrote {a.out}.json, {a.out}.png, {a.out}-strip.png")
+    walked = {n: r for n, r in results.items() if "frames" in r}  # a reused row kept no frames
+    if walked:
+        strip(walked, Path(f"{a.out}-strip.png"))
+    print(f"wrote {a.out}.json, {a.out}.png" + (f", {a.out}-strip.png" if walked else ""))
 
 
 if __name__ == "__main__":

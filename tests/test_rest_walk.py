@@ -1,5 +1,6 @@
 """scripts/rest_walk.py against real `worldpack serve` processes: draws of the
-sampler's noise, rows with their own sampler steps, and its errors."""
+sampler's noise, rows with their own sampler steps, rows reused
+from an earlier walk, and its errors."""
 
 import json
 import os
@@ -38,10 +39,31 @@ def test_draws_pair_rows_over_the_noise_and_draw_zero_is_the_single_walk(tmp_pat
     assert "2 draw(s) each, per draw" in many.stdout
 
 
+def test_a_reused_row_pairs_as_if_it_were_walked_again(tmp_path):
+    both = walk(tmp_path, "both", "--draws", "2", "--row", STUDENT, "--row", TEACHER_2)
+    assert both.returncode == 0, both.stdout + both.stderr
+    cached = f"{tmp_path / 'both.json'}:served"
+    again = walk(tmp_path, "again", "--draws", "2", "--reuse", cached, "--row", TEACHER_2)
+    assert again.returncode == 0, again.stdout + again.stderr
+    first = json.loads((tmp_path / "both.json").read_text())
+    second = json.loads((tmp_path / "again.json").read_text())
+    assert second["steps_per_row"] == {"served": 10, "teacher_2": 2}
+    # The same step seeds give the same frames, so the walked row repeats itself exactly.
+    assert second["across_worlds"]["way_back_db"] == first["across_worlds"]["way_back_db"]
+    was, now = first["across_worlds"]["against_served"]["teacher_2"], second["across_worlds"]["against_served"]["teacher_2"]
+    assert abs(was["diff_db"] - now["diff_db"]) <= 0.01 and was["wins"] == now["wins"], (was, now)  # reused values are rounded
+    assert second["rows"]["served"]["steps"] == first["rows"]["served"]["steps"]
+    refused = walk(tmp_path, "refused", "--draws", "3", "--reuse", cached, "--row", TEACHER_2)
+    assert refused.returncode != 0 and "that walk had draws 2, this one 3" in refused.stderr, refused.stderr
+    assert not (tmp_path / "refused.json").exists()
+
+
 def test_bad_rows_and_draws_are_refused_by_name(tmp_path):
     for args, words in [(["--row", "x=folder:worldpack:0"], "--row 'x=folder:worldpack:0'"),
                         (["--row", "nofolder"], "--row 'nofolder'"),
-                        (["--draws", "0", "--row", STUDENT], "--draws 0")]:
+                        (["--draws", "0", "--row", STUDENT], "--draws 0"),
+                        (["--reuse", f"{tmp_path}/none.json:served"], "--reuse"),
+                        (["--row", STUDENT, "--row", STUDENT], "each row needs its own name")]:
         out = walk(tmp_path, "bad", *args)
         assert out.returncode != 0 and words in out.stderr, out.stderr
         assert not (tmp_path / "bad.json").exists()
