@@ -66,6 +66,12 @@ fn triton_runs_the_graphs_as_the_local_backend_does() {
             .collect()
     };
     assert_eq!(frames(&[]), frames(&["--model-backend", &triton.backend()]), "frames served through Triton differ");
+    // Stopped, the host leaves none of the shared memory its calls used.
+    let prefix = format!("pytrtion{}-", triton.pid());
+    drop(remote);
+    drop(triton);
+    let left: Vec<String> = std::fs::read_dir("/dev/shm").unwrap().filter_map(|e| e.ok()?.file_name().into_string().ok()).filter(|n| n.starts_with(&prefix)).collect();
+    assert!(left.is_empty(), "the stopped Triton host left shared memory behind: {left:?}");
 }
 
 /// Triton stopped under a running server: steps answer 503 naming triton,

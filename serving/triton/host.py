@@ -16,6 +16,7 @@ repository for Triton's own onnxruntime backend (docs/deployment.md).
 import argparse
 import json
 import logging
+import os
 import pathlib
 import signal
 import sys
@@ -93,6 +94,17 @@ def main():
     config = TritonConfig(http_port=args.http_port, grpc_port=args.grpc_port, metrics_port=args.metrics_port,
                           http_address="127.0.0.1", grpc_address="127.0.0.1",
                           exit_timeout_secs=args.exit_timeout_secs)
+    try:
+        serve(args, manifest, options, providers, config)
+    finally:
+        # pytriton leaves the shared memory it made for the calls' tensors (/dev/shm/pytrtion<pid>-*)
+        # when it stops; tritonserver has stopped by now, so nothing else can be using them.
+        for segment in pathlib.Path("/dev/shm").glob(f"pytrtion{os.getpid()}-*"):
+            segment.unlink(missing_ok=True)
+
+
+def serve(args, manifest, options, providers, config):
+    """Binds every graph of the model as a Triton model and serves until SIGTERM."""
     with Triton(config=config) as triton:
         for role, spec in graphs(manifest):
             session = ort.InferenceSession(str(args.model / spec["file"]), options, providers=providers)

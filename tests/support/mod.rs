@@ -315,6 +315,11 @@ impl TritonHost {
         }
     }
 
+    /// The host's process id (its shared memory is named after it).
+    pub fn pid(&self) -> u32 {
+        self.child.id()
+    }
+
     /// The `--model-backend` URL.
     pub fn backend(&self) -> String {
         format!("triton://127.0.0.1:{}", self.ports[0])
