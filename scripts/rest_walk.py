@@ -254,12 +254,12 @@ def main() -> None:
     if not a.row and not a.reuse:
         sys.exit("--row: give at least one row to walk (or --reuse one)")
     rows = [row_of(spec, a.steps) for spec in a.row]
-    names = [spec.rpartition(":")[2] for spec in a.reuse] + [name for name, *_ in rows]
+    reused = [(spec.rpartition(":")[2], spec) for spec in a.reuse]
+    names = [name for name, _ in reused] + [name for name, *_ in rows]
     if len(set(names)) < len(names):
         sys.exit(f"--row/--reuse: each row needs its own name, got {', '.join(names)}")
     results, per_world, steps_per_row = {}, {}, {}
-    for spec in a.reuse:
-        name = spec.rpartition(":")[2]
+    for name, spec in reused:
         results[name], per_world[name], steps_per_row[name] = reused_row(spec, worlds, a.draws, a.observe_outbound, a.covisible)
     for name, model, policy, steps in rows:
         steps_per_row[name] = steps

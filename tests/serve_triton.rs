@@ -66,7 +66,8 @@ fn triton_runs_the_graphs_as_the_local_backend_does() {
             .collect()
     };
     assert_eq!(frames(&[]), frames(&["--model-backend", &triton.backend()]), "frames served through Triton differ");
-    // Stopped, the host leaves none of the shared memory its calls used.
+    // Stopped, the host leaves none of the shared memory its calls used (the client goes
+    // first, as at the end of a test, the order in which pytriton left its segments).
     let prefix = format!("pytrtion{}-", triton.pid());
     drop(remote);
     drop(triton);

@@ -78,8 +78,9 @@ def main():
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
     for name in START_LOGGERS:
         logging.getLogger(name).setLevel(logging.DEBUG)
-    # SIGTERM unwinds `with Triton(...)`, which stops tritonserver and removes its shared
-    # memory and its workspace (a copy of the server's binaries); a kill leaves both behind.
+    # SIGTERM unwinds `with Triton(...)`, which stops tritonserver and removes its workspace
+    # (a copy of the server's binaries), and then main's sweep of this process's shared
+    # memory; a kill leaves both behind.
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))
 
     manifest_path = args.model / "manifest.json"

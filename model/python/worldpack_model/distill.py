@@ -131,8 +131,7 @@ def distill(data: Path, run: Path, policy: str, grid_text: str, teacher_steps: i
         # A checkpoint moved between machines may carry only its EMA weights.
         student.load_state_dict(saved.get("model", saved["ema"]))
         ema.load_state_dict(saved["ema"])
-        if not load_optimiser(opt, saved):
-            print(f"{ckpt.name} has no optimiser state (recovered from an export): AdamW starts afresh")
+        load_optimiser(opt, saved, ckpt)
         step = saved["step"]
         print(f"resuming {ckpt.name} at step {step}")
 

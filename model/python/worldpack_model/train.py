@@ -51,18 +51,18 @@ def save(path: Path, **state) -> None:
     tmp.replace(path)  # a crash mid-save never leaves a torn checkpoint
 
 
-def load_optimiser(opt: torch.optim.Optimizer, state: dict) -> bool:
-    """Restores `opt`'s moments from a checkpoint's `state`, keeping the
+def load_optimiser(opt: torch.optim.Optimizer, state: dict, ckpt: Path) -> None:
+    """Restores `opt`'s moments from checkpoint `ckpt`'s `state`, keeping the
     learning rates `opt` was built with: a resumed run takes the `--lr` it is
-    given, not the one it was saved with. False when the checkpoint has none
-    (recovered from an export: the weights survive, the moments do not)."""
+    given, not the one it was saved with. A checkpoint recovered from an export
+    has no moments (the weights survive, the optimiser does not): it says so."""
     if "opt" not in state:
-        return False
+        print(f"{ckpt.name} has no optimiser state (recovered from an export): AdamW starts afresh")
+        return
     asked = [g["lr"] for g in opt.param_groups]
     opt.load_state_dict(state["opt"])
     for group, lr in zip(opt.param_groups, asked):
         group["lr"] = lr
-    return True
 
 
 def resume(ckpt: Path, model: torch.nn.Module, opt: torch.optim.Optimizer, what: str, device="cpu", key: str = "model") -> int:
@@ -72,8 +72,7 @@ def resume(ckpt: Path, model: torch.nn.Module, opt: torch.optim.Optimizer, what:
         return 0
     state = torch.load(ckpt, map_location=device, weights_only=False)
     model.load_state_dict(state[key])
-    if not load_optimiser(opt, state):
-        print(f"{ckpt.name} has no optimiser state: AdamW starts afresh")
+    load_optimiser(opt, state, ckpt)
     print(f"resuming {what} at step {state['step']}")
     return state["step"]
 
@@ -233,8 +232,7 @@ def train_cdit(data: Path, run: Path, policy: str, steps: int, batch: int, lr: f
         origin = state.get("init_from", origin)
         model.load_state_dict(state["model"])
         ema.load_state_dict(state["ema"])
-        if not load_optimiser(opt, state):
-            print(f"{ckpt.name} has no optimiser state (recovered from an export): AdamW starts afresh")
+        load_optimiser(opt, state, ckpt)
         step = state["step"]
         if state.get("memory_focus", 0.0) != memory_focus:
             raise SystemExit(f"--memory-focus: {ckpt} was trained with {state.get('memory_focus', 0.0)}, not {memory_focus}; "
