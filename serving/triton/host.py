@@ -74,6 +74,11 @@ def main():
     ap.add_argument("--exit-timeout-secs", type=int, default=30,
                     help="on SIGTERM, how long Triton waits for calls in flight before it stops (default 30, as Triton's)")
     args = ap.parse_args()
+    # stdout carries one line, "serving ...", that a caller waits for. tritonserver inherits
+    # fd 1 and writes its log there in buffered blocks that can split that line, so its log
+    # goes to stderr and the line to a copy of the original stdout.
+    announce = os.fdopen(os.dup(1), "w")
+    os.dup2(2, 1)
     # The start on stderr, step by step: a start that hangs leaves a trail.
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
     for name in START_LOGGERS:
@@ -96,7 +101,7 @@ def main():
                           http_address="127.0.0.1", grpc_address="127.0.0.1",
                           exit_timeout_secs=args.exit_timeout_secs)
     try:
-        serve(args, manifest, options, providers, config)
+        serve(args, manifest, options, providers, config, announce)
     finally:
         # pytriton leaves the shared memory it made for the calls' tensors (/dev/shm/pytrtion<pid>-*)
         # when it stops; tritonserver has stopped by now, so nothing else can be using them.
@@ -104,7 +109,7 @@ def main():
             segment.unlink(missing_ok=True)
 
 
-def serve(args, manifest, options, providers, config):
+def serve(args, manifest, options, providers, config, announce):
     """Binds every graph of the model as a Triton model and serves until SIGTERM."""
     with Triton(config=config) as triton:
         for role, spec in graphs(manifest):
@@ -118,7 +123,7 @@ def serve(args, manifest, options, providers, config):
                                    batcher=DynamicBatcher(max_queue_delay_microseconds=args.queue_delay_us)),
                 strict=True,
             )
-        print(f"serving {manifest['name']} on http://127.0.0.1:{args.http_port} (metrics on :{args.metrics_port})", flush=True)
+        print(f"serving {manifest['name']} on http://127.0.0.1:{args.http_port} (metrics on :{args.metrics_port})", file=announce, flush=True)
         for name in START_LOGGERS:
             logging.getLogger(name).setLevel(logging.INFO)
         triton.serve()
