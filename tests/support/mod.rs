@@ -287,21 +287,23 @@ impl TritonHost {
             .process_group(0)
             .spawn()
             .unwrap();
-        // The first line that says "serving", read on a thread so that the wait has a deadline.
+        // Its stdout's one line, "serving ...", read on a thread so that the wait has a
+        // deadline. Anything else there (tritonserver's log belongs on stderr) fails the start.
         let (said, heard) = std::sync::mpsc::channel();
         let mut stdout = BufReader::new(child.stdout.take().unwrap());
         std::thread::spawn(move || {
             let mut line = String::new();
-            while !line.starts_with("serving ") {
-                line.clear();
-                if stdout.read_line(&mut line).unwrap_or(0) == 0 {
-                    return; // dropping `said` reports the exit
-                }
+            if stdout.read_line(&mut line).unwrap_or(0) == 0 {
+                return; // dropping `said` reports the exit
             }
-            let _ = said.send(stdout);
+            let _ = said.send(if line.starts_with("serving ") { Ok(stdout) } else { Err(line) });
         });
         match heard.recv_timeout(TRITON_START) {
-            Ok(stdout) => Ok(TritonHost { child, stopped: false, ports: [http, grpc, metrics], _stdout: stdout }),
+            Ok(Ok(stdout)) => Ok(TritonHost { child, stopped: false, ports: [http, grpc, metrics], _stdout: stdout }),
+            Ok(Err(line)) => {
+                stop_group(&mut child);
+                panic!("serving/triton/host.py wrote {line:?} to stdout, which carries its \"serving\" line alone");
+            }
             Err(waited) => {
                 stop_group(&mut child);
                 let text = std::fs::read_to_string(&log).unwrap_or_default();
