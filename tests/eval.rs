@@ -16,8 +16,7 @@ fn root() -> PathBuf {
 }
 
 fn run(args: &[&str]) -> Output {
-    let out = bin().args(args).current_dir(root()).output().expect("worldpack runs");
-    out
+    bin().args(args).current_dir(root()).output().expect("worldpack runs")
 }
 
 fn ok(args: &[&str]) -> String {
@@ -170,7 +169,7 @@ fn feature_networks_add_lpips_dreamsim_and_fvd() {
     let r = json(&out.join("results.json"));
     for cell in r["cells"].as_array().unwrap() {
         let (lpips, dreamsim) = (cell["lpips"][0].as_f64().unwrap(), cell["dreamsim"][0].as_f64().unwrap());
-        assert!(lpips > 0.0 && dreamsim >= 0.0 && dreamsim <= 2.0, "{cell}");
+        assert!(lpips > 0.0 && (0.0..=2.0).contains(&dreamsim), "{cell}");
     }
     // 8 frames per trajectory, clips of 4: two clips per trajectory, one trajectory per cell.
     for (row, cells) in r["fvd"].as_object().unwrap() {

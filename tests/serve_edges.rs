@@ -47,6 +47,7 @@ fn sigterm_finishes_the_step_in_flight_and_exits_0_on_postgres() {
 /// traffic, and the marker is in no answer body or header, no log line, no
 /// metric and no startup line; readiness names the store while it is down.
 #[test]
+#[allow(clippy::result_large_err)] // `post` returns ureq's own Result
 fn the_database_password_leaves_the_process_nowhere() {
     const MARKER: &str = "Sekr1tMarkerPw";
     let pg = PgCluster::start("secret");

@@ -181,7 +181,7 @@ impl Engine {
             (plan, stats.overlap_evaluations)
         };
         let select_ms = ms(t0);
-        let action_values = action.to_vector().map(|v| v as f32);
+        let action_values = action.to_vector();
         let (warp_frames, warp) = match &m.manifest().denoiser.warp {
             Some(spec) => s.warp_sources(&frustum, spec.frames, self.covisible)?,
             None => (Vec::new(), Vec::new()),

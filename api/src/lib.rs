@@ -183,7 +183,7 @@ impl Server {
             None => None,
         };
         session::policy_of(&config.policy).map_err(|e| format!("--policy: {}", e.message))?;
-        if config.overlay_warp && !model.as_ref().is_some_and(|m| m.manifest().denoiser.warp.is_some()) {
+        if config.overlay_warp && model.as_ref().is_none_or(|m| m.manifest().denoiser.warp.is_none()) {
             return Err("--overlay-warp: only a geometry model (a manifest with denoiser.warp) has a warp to overlay".into());
         }
         let mut engine = Engine::new(store, model);

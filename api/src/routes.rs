@@ -630,7 +630,7 @@ impl CoVisibilityInput {
     fn settings(&self) -> Result<CoVisibility, ApiError> {
         let d = CoVisibility::default();
         let limit = |field: &str, v: usize, max: usize| {
-            if (1..=max).contains(&v) { Ok(v) } else { Err(ApiError::bad(&format!("covisibility.{field}"), format!("must be from 1 to {max}, got {v}"))) }
+            if (1..=max).contains(&v) { Ok(v) } else { Err(ApiError::bad(format!("covisibility.{field}"), format!("must be from 1 to {max}, got {v}"))) }
         };
         let tolerance = self.tolerance.unwrap_or(d.tolerance);
         if !(0.0..=10.0).contains(&tolerance) {

@@ -41,7 +41,7 @@ struct ConcurrencyRow {
 }
 
 fn action(i: usize) -> Action {
-    Action { forward: true, yaw_deg: if i % 4 == 0 { 8.0 } else { 0.0 }, ..Action::default() }
+    Action { forward: true, yaw_deg: if i.is_multiple_of(4) { 8.0 } else { 0.0 }, ..Action::default() }
 }
 
 fn post(url: &str, body: &Value) -> Result<Value> {

@@ -47,10 +47,10 @@ const TURN: usize = 18;
 /// steps of 10 degrees; the way back mirrors the exploration's turns.
 fn action(walk: &Walk, i: usize) -> Action {
     let yaw_deg = if i < walk.explore {
-        if i % 4 == 0 { 8.0 } else { 0.0 }
+        if i.is_multiple_of(4) { 8.0 } else { 0.0 }
     } else if i < walk.explore + TURN {
         10.0
-    } else if i % 4 == 0 {
+    } else if i.is_multiple_of(4) {
         -8.0
     } else {
         0.0

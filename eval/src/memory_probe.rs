@@ -14,7 +14,7 @@ use model::{Method, Model, RuntimeOptions, Sampler};
 use serde::Serialize;
 
 use crate::metrics::DepthTally;
-use crate::probe::{FrameScore, Predictor, ProbeError, Row, Settings as ProbeSettings, TrajectoryScores, encode_all, latency_ms, probe_trajectory};
+use crate::probe::{FrameScore, Predictor, ProbeError, Row, Settings as ProbeSettings, SharedLatents, TrajectoryScores, encode_all, latency_ms, probe_trajectory};
 use crate::program::{ProgramError, load_model, setting, write_atomically};
 use crate::stats::{Interval, cluster_bootstrap, mean_std};
 use crate::suite::Trajectory;
@@ -245,8 +245,8 @@ pub fn probe(o: &Settings, progress: &dyn Fn(Progress)) -> Result<Report, Progra
 }
 
 /// The latents of `traj` under a model, encoded once per model (rows share models).
-pub fn latent_cache(traj: &Trajectory) -> impl FnMut(&Model) -> Result<Rc<Vec<Vec<f32>>>, ProbeError> + '_ {
-    let mut cache: Vec<(*const Model, Rc<Vec<Vec<f32>>>)> = Vec::new();
+pub fn latent_cache(traj: &Trajectory) -> impl FnMut(&Model) -> Result<SharedLatents, ProbeError> + '_ {
+    let mut cache: Vec<(*const Model, SharedLatents)> = Vec::new();
     move |m| {
         if let Some((_, l)) = cache.iter().find(|(p, _)| std::ptr::eq(*p, m)) {
             return Ok(l.clone());

@@ -280,6 +280,9 @@ fn predict_model(
     Ok(())
 }
 
+/// A trajectory's latents under one model, one per frame, shared by the rows on that model.
+pub type SharedLatents = std::rc::Rc<Vec<Vec<f32>>>;
+
 /// Scores every row on the return legs of one trajectory. `latents_for(m)`
 /// gives the trajectory's latents under model `m` (rows sharing a model
 /// share them). `progress(n)` is told of each `n` frames scored.
@@ -287,7 +290,7 @@ pub fn probe_trajectory(
     traj: &Trajectory,
     rows: &[Row],
     settings: &Settings,
-    latents_for: &mut dyn FnMut(&Model) -> Result<std::rc::Rc<Vec<Vec<f32>>>, ProbeError>,
+    latents_for: &mut dyn FnMut(&Model) -> Result<SharedLatents, ProbeError>,
     progress: &dyn Fn(usize),
 ) -> Result<TrajectoryScores, ProbeError> {
     let targets = traj.return_frames(settings.stride);
@@ -384,16 +387,16 @@ pub fn latency_ms(traj: &Trajectory, row: &Row, latents: &[Vec<f32>], calls: usi
     let last = *targets.last().unwrap_or(&0);
     let mut times = Vec::new();
     let settings = Settings { stride: 1, batch: 1, seed: 0 };
-    for t in 0..=last {
+    for (t, frustum) in frusta.iter().enumerate().take(last + 1) {
         let timed = targets.contains(&t);
         if timed || warm_up.contains(&t) {
             let start = Instant::now();
-            let (plan, _) = store.select(&policy, &frusta[t], None);
+            let (plan, _) = store.select(&policy, frustum, None);
             match &row.predictor {
                 Predictor::Model { model, policy, sampler } | Predictor::Composite { model, policy, sampler } => {
                     // A geometry model's warp sources are chosen within the timed call too.
                     // (A composite's overlay is not timed: it costs what the fused reference does.)
-                    let source = warp_policy(model).map_or_else(|| plan.clone(), |p| store.select(&p, &frusta[t], None).0);
+                    let source = warp_policy(model).map_or_else(|| plan.clone(), |p| store.select(&p, frustum, None).0);
                     predict_model(model, policy, sampler, traj, latents, &[t], &[plan], &[source], &settings, |_, img| {
                         std::hint::black_box(img);
                     })?;
@@ -410,7 +413,7 @@ pub fn latency_ms(traj: &Trajectory, row: &Row, latents: &[Vec<f32>], calls: usi
             }
         }
         store
-            .insert(MemoryFrame { id: t as u64, time: t as u64, frustum: frusta[t].clone() })
+            .insert(MemoryFrame { id: t as u64, time: t as u64, frustum: frustum.clone() })
             .map_err(|e| ProbeError::Invalid(e.to_string()))?;
     }
     times.sort_by(f64::total_cmp);

@@ -104,7 +104,7 @@ impl Capture<'_> {
         let wanted: Vec<usize> = (0..requests.len())
             .filter(|&j| {
                 let r = &requests[j];
-                leg(j).0 % self.stride.max(1) == 0 && r.warp.first().is_some_and(|best| !stands_at(best.pose, r.target_pose))
+                leg(j).0.is_multiple_of(self.stride.max(1)) && r.warp.first().is_some_and(|best| !stands_at(best.pose, r.target_pose))
             })
             .collect();
         if wanted.is_empty() {
@@ -378,7 +378,8 @@ pub fn clip_fvd(
     seed: u64,
 ) -> Result<Option<FvdEstimate>, ProbeError> {
     let len = net.clip_len();
-    let (mut fake, mut real): (Vec<Vec<&[u8]>>, Vec<Vec<&[u8]>>) = (Vec::new(), Vec::new());
+    let mut fake: Vec<Vec<&[u8]>> = Vec::new();
+    let mut real: Vec<Vec<&[u8]>> = Vec::new();
     for ((traj, s), f) in trajs.iter().zip(scores).zip(frames) {
         for start in (0..f.len().saturating_sub(len - 1)).step_by(len) {
             fake.push(f[start..start + len].iter().map(Vec::as_slice).collect());

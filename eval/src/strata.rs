@@ -107,7 +107,7 @@ fn surface_points(traj: &Trajectory, t: usize, stride: usize) -> Vec<DVec3> {
     traj.depth(t)
         .iter()
         .enumerate()
-        .filter(|(i, d)| **d > 0 && (i % w) % stride == 0 && (i / w) % stride == 0)
+        .filter(|(i, d)| **d > 0 && (i % w).is_multiple_of(stride) && (i / w).is_multiple_of(stride))
         .map(|(i, &d)| traj.poses[t].camera_to_world(k.unproject(DVec2::new((i % w) as f64, (i / w) as f64), d as f64 * DEPTH_UNIT_M)))
         .collect()
 }

@@ -17,7 +17,7 @@ use std::rc::Rc;
 use std::time::Instant;
 
 use crate::noise::{Agreement, PoseNoise, pose_error, selection_agreement};
-use crate::probe::{FrameScore, Predictor, ProbeError, Row, Settings as ProbeSettings, TrajectoryScores, encode_all, latency_ms, probe_trajectory};
+use crate::probe::{FrameScore, Predictor, ProbeError, Row, Settings as ProbeSettings, SharedLatents, TrajectoryScores, encode_all, latency_ms, probe_trajectory};
 use crate::stats::{Interval, cluster_bootstrap, mean_std};
 use crate::strata::{Stratum, TargetFeatures, features};
 use crate::suite::Trajectory;
@@ -140,7 +140,7 @@ struct Saved {
 }
 
 const BOOTSTRAP_REPS: usize = 2000;
-const NOISE_SEED: u64 = 0x5eed_0f_0d0;
+const NOISE_SEED: u64 = 0x5eed0f0d0;
 
 /// The selection policies whose choice pose noise can change (and the two
 /// recency policies, as a check that it changes nothing there).
@@ -277,7 +277,7 @@ pub fn study(o: &Settings, progress: &dyn Fn(Progress)) -> Result<Summary> {
     let targets: usize = trajectories.iter().map(|t| t.return_frames(o.probe.stride).len()).sum();
     progress(Progress::Started { trajectories: trajectories.len(), targets, conditions: conditions.len() });
 
-    let mut latents: HashMap<(usize, usize), Rc<Vec<Vec<f32>>>> = HashMap::new();
+    let mut latents: HashMap<(usize, usize), SharedLatents> = HashMap::new();
     let mut results: Vec<(Condition, Saved)> = Vec::new();
     for (ci, c) in conditions.into_iter().enumerate() {
         let key = Key {
@@ -373,12 +373,12 @@ fn build_rows<'m>(c: &Condition, models: &'m [(String, Model)], method: Method) 
 /// Trajectory `ti`'s latents under model `mi`, encoded once. Latents depend
 /// on the frames only, never on the poses, so every condition shares them.
 fn cached_latents(
-    cache: &mut HashMap<(usize, usize), Rc<Vec<Vec<f32>>>>,
+    cache: &mut HashMap<(usize, usize), SharedLatents>,
     ti: usize,
     traj: &Trajectory,
     models: &[(String, Model)],
     mi: usize,
-) -> Result<Rc<Vec<Vec<f32>>>, ProbeError> {
+) -> Result<SharedLatents, ProbeError> {
     if let Some(l) = cache.get(&(ti, mi)) {
         return Ok(l.clone());
     }
@@ -397,7 +397,7 @@ fn run_condition(
     trajectories: &[Trajectory],
     models: &[(String, Model)],
     timing: &[(String, Model)],
-    latents: &mut HashMap<(usize, usize), Rc<Vec<Vec<f32>>>>,
+    latents: &mut HashMap<(usize, usize), SharedLatents>,
     progress: &dyn Fn(Progress),
 ) -> Result<Saved> {
     let start = Instant::now();
@@ -474,7 +474,7 @@ fn noisy_rollouts(
     results: &[(Condition, Saved)],
     trajectories: &[Trajectory],
     models: &[(String, Model)],
-    latents: &mut HashMap<(usize, usize), Rc<Vec<Vec<f32>>>>,
+    latents: &mut HashMap<(usize, usize), SharedLatents>,
     progress: &dyn Fn(Progress),
 ) -> Result<Vec<(String, SavedRollout)>> {
     let dir = o.out.join("rollouts");

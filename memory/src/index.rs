@@ -304,12 +304,14 @@ impl FrameMemory {
             // Warm start: last plan's frames that can still overlap.
             let mut warm: Vec<usize> = Vec::new();
             for id in previous.iter().flat_map(|p| p.selected().map(|(_, f)| f.id)) {
-                if let Some(&slot) = self.slot_of.get(&id) {
-                    if Some(slot) != pinned && meets(slot) && !warm.contains(&slot) {
-                        warm.push(slot);
-                        stats.overlap_evaluations += 1;
-                        best.push(describe(slot, overlap_of(&self.frames[slot])));
-                    }
+                if let Some(&slot) = self.slot_of.get(&id)
+                    && Some(slot) != pinned
+                    && meets(slot)
+                    && !warm.contains(&slot)
+                {
+                    warm.push(slot);
+                    stats.overlap_evaluations += 1;
+                    best.push(describe(slot, overlap_of(&self.frames[slot])));
                 }
             }
             let groups: Vec<usize> = if ranged {

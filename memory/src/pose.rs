@@ -245,6 +245,7 @@ impl AngleUnit {
         }
     }
 
+    #[allow(clippy::wrong_self_convention)] // the unit is the target of the conversion, as `to_radians`'s is its source
     fn from_radians(self, a: f64) -> f64 {
         match self {
             AngleUnit::Degrees => a.to_degrees(),

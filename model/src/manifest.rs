@@ -304,10 +304,10 @@ impl Manifest {
             if noise_inputs != 0 && noise_inputs != layout.slots.len() {
                 return bad(&format!("{at}.inputs"), "context noise levels for some rates but not all".into());
             }
-            if let Some(w) = &d.warp {
-                if !layout.inputs.iter().any(|i| i.name == w.input) {
-                    return bad(&format!("{at}.inputs"), format!("denoiser.warp names the input {:?}, which this layout lacks", w.input));
-                }
+            if let Some(w) = &d.warp
+                && !layout.inputs.iter().any(|i| i.name == w.input)
+            {
+                return bad(&format!("{at}.inputs"), format!("denoiser.warp names the input {:?}, which this layout lacks", w.input));
             }
         }
         if let Some(w) = &d.warp {
@@ -317,7 +317,7 @@ impl Manifest {
             if w.channels != a.latent.channels + 1 {
                 return bad("denoiser.warp.channels", format!("expected the latent's {} channels plus coverage, got {}", a.latent.channels, w.channels));
             }
-            if self.image.height % a.latent.height != 0 || self.image.width % a.latent.width != 0 {
+            if !self.image.height.is_multiple_of(a.latent.height) || !self.image.width.is_multiple_of(a.latent.width) {
                 return bad("denoiser.warp", "the image must be a whole multiple of the latent to pool the coverage".into());
             }
         }

@@ -178,7 +178,7 @@ fn decode_response(spec: &GraphSpec, header: &[u8], mut binary: &[u8]) -> Result
         let data: Vec<f32> = match o["parameters"]["binary_data_size"].as_u64() {
             Some(size) => {
                 let size = size as usize;
-                if size > binary.len() || size % 4 != 0 {
+                if size > binary.len() || !size.is_multiple_of(4) {
                     return Err(remote(format!("output {name}: {size} bytes announced, {} left", binary.len())));
                 }
                 let (mine, rest) = binary.split_at(size);

@@ -165,11 +165,11 @@ impl Block {
         let noise = |salt: i64| unit(self as u64, &[cell[0] as i64, cell[1] as i64, cell[2] as i64, tu as i64, tv as i64, salt]) - 0.5;
         let factor = match self.pattern(face) {
             Pattern::Speckle(amp) => 1.0 + amp * noise(0),
-            Pattern::Grain => 1.0 + 0.25 * (if tu % 3 == 0 { -0.5 } else { 0.1 }) + 0.1 * noise(0),
+            Pattern::Grain => 1.0 + 0.25 * (if tu.is_multiple_of(3) { -0.5 } else { 0.1 }) + 0.1 * noise(0),
             Pattern::Boards => 1.0 + if tv % 4 == 3 { -0.3 } else { 0.08 * noise(0) },
             Pattern::Bricks => {
-                let offset = if (tv / 2) % 2 == 0 { 0 } else { 2 };
-                if tv % 2 == 1 || (tu + offset) % 4 == 0 { 1.35 } else { 1.0 + 0.12 * noise(0) }
+                let offset = if (tv / 2).is_multiple_of(2) { 0 } else { 2 };
+                if tv % 2 == 1 || (tu + offset).is_multiple_of(4) { 1.35 } else { 1.0 + 0.12 * noise(0) }
             }
             Pattern::GrassSide if tv < 2 => {
                 return scale(Block::Grass.base_rgb(Face::Top), 1.0 + 0.15 * noise(0));

@@ -33,7 +33,7 @@ pub enum Split {
 
 impl Split {
     pub fn world_seed(self, suite_seed: u64, parts: &[i64]) -> u64 {
-        let h = hash(suite_seed ^ 0x5eed_0f_3071d, parts);
+        let h = hash(suite_seed ^ 0x5eed0f3071d, parts);
         match self {
             Split::Train => h & !(1 << 63),
             Split::Test => h | (1 << 63),

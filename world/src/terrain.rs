@@ -325,7 +325,7 @@ impl World {
                     };
                     for y in floor..floor + walls {
                         let window = y == floor + 2 && (dx + dz) % 3 == 1 && !door;
-                        if !(door && y < floor + 2) && !window {
+                        if !(window || door && y < floor + 2) {
                             self.set(x, y, z, wall);
                         }
                     }
