@@ -44,7 +44,7 @@ pub struct Settings {
     /// Trajectories generated together per denoiser call.
     pub batch: usize,
     pub runtime: RuntimeOptions,
-    /// rows/<row>.json as each row finishes, then results.json.
+    /// `rows/<row>.json` as each row finishes, then `results.json`.
     pub out: PathBuf,
     pub lpips: Option<PathBuf>,
     pub dreamsim: Option<PathBuf>,

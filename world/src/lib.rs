@@ -1,6 +1,6 @@
 //! A LoopNav-style synthetic world that WorldPack owns: procedural voxel
 //! terrain with biomes and landmarks ([`terrain`]), a ray-cast RGB + depth
-//! renderer on the memory crate's OpenCV camera ([`render`]), a
+//! renderer on the memory crate's OpenCV camera ([`mod@render`]), a
 //! Minecraft-like player whose physics is also the motion model ([`agent`]),
 //! LoopNav's ABA/ABCA protocol ([`trajectory`]), and suites on disk as NumPy
 //! arrays ([`suite`], [`npy`]). See `docs/world.md`.
