@@ -35,7 +35,7 @@ def main():
     m = json.loads((a.model / "manifest.json").read_text())
     sess = lambda f: ort.InferenceSession(str(a.model / f), providers=["CPUExecutionProvider"])
     enc, dec = sess(m["autoencoder"]["encoder"]["file"]), sess(m["autoencoder"]["decoder"]["file"])
-    lay = next(l for l in m["denoiser"]["layouts"] if l["name"] == "worldpack")
+    lay = next(x for x in m["denoiser"]["layouts"] if x["name"] == "worldpack")
     den = sess(lay["file"])
     scale = m["autoencoder"]["latent_scale"]
 

@@ -37,7 +37,6 @@ Standard library, NumPy and OpenCV only (the test venv)."""
 from __future__ import annotations
 
 import argparse
-import base64
 import json
 import socket
 import subprocess

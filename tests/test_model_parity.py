@@ -132,7 +132,7 @@ def test_batch_is_dynamic_and_rows_independent():
 
 def test_empty_slots_are_ignored_and_present_ones_are_not():
     """A masked slot's contents cannot change eps; a present slot's must."""
-    lay = next(l for l in MANIFEST["denoiser"]["layouts"] if len(l["slots"]) > 1)
+    lay = next(x for x in MANIFEST["denoiser"]["layouts"] if len(x["slots"]) > 1)
     arrays = load(MANIFEST["reference"]["graphs"][f"denoiser_{lay['name']}"])
     sess = session(lay["file"])
     feed = {s["name"]: arrays[s["name"]].copy() for s in lay["inputs"]}
@@ -151,8 +151,8 @@ def test_empty_slots_are_ignored_and_present_ones_are_not():
 def test_rate_slots_cost_the_manifest_tokens():
     for lay in MANIFEST["denoiser"]["layouts"]:
         assert lay["context_tokens"] == sum(s["count"] * s["tokens_per_frame"] for s in lay["slots"])
-    packed = next(l for l in MANIFEST["denoiser"]["layouts"] if l["name"] == "worldpack")
-    base = next(l for l in MANIFEST["denoiser"]["layouts"] if l["name"] == "baseline")
+    packed = next(x for x in MANIFEST["denoiser"]["layouts"] if x["name"] == "worldpack")
+    base = next(x for x in MANIFEST["denoiser"]["layouts"] if x["name"] == "baseline")
     assert packed["frames"] == 22 and base["frames"] == 4
     assert packed["context_tokens"] == base["context_tokens"], "the packed 22 frames must fit the 4-frame budget"
 
@@ -163,7 +163,7 @@ def test_sampler_trace_matches_pytorch(method):
     the NumPy reference sampler, lands on PyTorch's next state."""
     info = MANIFEST["reference"]["traces"][method]
     trace = load(info["folder"])
-    lay = next(l for l in MANIFEST["denoiser"]["layouts"] if l["name"] == info["layout"])
+    lay = next(x for x in MANIFEST["denoiser"]["layouts"] if x["name"] == info["layout"])
     cond = load(MANIFEST["reference"]["graphs"][f"denoiser_{lay['name']}"])
     sess = session(lay["file"])
     names = [s["name"] for s in lay["inputs"]]
@@ -209,7 +209,7 @@ def test_paper_token_geometry_fixture_is_consistent():
     """The committed paper-token model (random weights) has the example's token geometry, graphs and all."""
     m = json.loads((ROOT / "fixtures" / "paper_tokens" / "manifest.json").read_text())
     assert wm.validate(m) == []
-    layouts = {l["name"]: l for l in m["denoiser"]["layouts"]}
+    layouts = {x["name"]: x for x in m["denoiser"]["layouts"]}
     assert {s["rate"]: s["tokens_per_frame"] for s in layouts["worldpack"]["slots"]} == {1: 196, 4: 49, 16: 16}
     assert (layouts["worldpack"]["context_tokens"], layouts["baseline"]["context_tokens"]) == (844, 784)
     assert "training" not in m and "metrics" not in m, "random weights claim no training and no accuracy"

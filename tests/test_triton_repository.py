@@ -11,7 +11,6 @@ import json
 import pathlib
 import sys
 
-import numpy as np
 import onnxruntime as ort
 import pytest
 from google.protobuf import text_format

@@ -36,10 +36,10 @@ class Geometry:
         sides: dict[tuple, list] = {}
         blocking = set()
         for s in sectors:
-            for l in s.lines:
-                key = tuple(sorted([(l.x1, l.y1), (l.x2, l.y2)]))
+            for line in s.lines:
+                key = tuple(sorted([(line.x1, line.y1), (line.x2, line.y2)]))
                 sides.setdefault(key, []).append(s)
-                if l.is_blocking:
+                if line.is_blocking:
                     blocking.add(key)
         walls = []
         for key, ss in sides.items():
@@ -195,7 +195,7 @@ def start_points(sectors, geom: Geometry, count: int, rng: np.random.Generator,
     """Random starting points inside the map's sectors (a point inside a
     sector's boundary an odd number of times), where a player fits and the
     walls are at least `min_clearance` away; each with a random angle."""
-    entries = [(i, l.x1, l.y1, l.x2, l.y2) for i, s in enumerate(sectors) for l in s.lines]
+    entries = [(i, line.x1, line.y1, line.x2, line.y2) for i, s in enumerate(sectors) for line in s.lines]
     owner = np.array([e[0] for e in entries])
     seg = np.array([e[1:] for e in entries], float)
     opening = np.array([s.ceiling_height - s.floor_height for s in sectors], float)

@@ -24,7 +24,7 @@ from .cdit import CDiT
 from .config import ACTION_NAMES, ACTION_SCALE, LAYOUTS, Layout, ModelConfig, tokens_per_frame
 from .diffusion import Schedule, sample
 from .warp import batch_warp, forward_warp, warp_input
-from .train import evaluate_autoencoder, load_autoencoder, pick_device, run_config
+from .train import evaluate_autoencoder, load_autoencoder, run_config
 
 MANIFEST_FORMAT = "worldpack-model/1"
 OPSET = 18
@@ -207,7 +207,7 @@ def export(run: Path, policy: str, layout_names: list[str], data: Path, out: Pat
         from .distill import EpsFromV
 
         model = EpsFromV(model, Schedule(cfg.diffusion).alphas_cumprod)
-    log = [json.loads(l) for l in (run / "log.jsonl").read_text().splitlines()] if (run / "log.jsonl").exists() else []
+    log = [json.loads(line) for line in (run / "log.jsonl").read_text().splitlines()] if (run / "log.jsonl").exists() else []
     last = lambda stage: next((r for r in reversed(log) if r["stage"] == stage), {})
     training = {
         # Checkpoints from before they recorded their data were all trained on `worldpack sim dataset`.
