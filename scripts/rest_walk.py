@@ -22,7 +22,8 @@ LoopNav protocol through the API, where a geometry model can warp what was seen.
 One walk is one world and a few dozen frames. `--worlds 1-24` walks the same
 path in each of those synthetic worlds (pictures for the first) and adds the
 way back per world and, for every row after the first, its mean difference
-from the first row with a 95% bootstrap interval over worlds. One walk is also
+from the first row with a 95% bootstrap interval over worlds, the median
+difference and the world where the row is furthest behind. One walk is also
 one draw of the sampler's noise: `--draws 16` walks each world 16 times with
 other step seeds, and with a single world the interval is over those draws
 (is a difference the model's, or the noise's?). A row may name its own sampler
@@ -220,13 +221,17 @@ def way_back(steps: list[dict]) -> float:
     return float(np.mean([s["psnr_db"] for s in steps if s["phase"] == "back"]))
 
 
-def paired(first: list[float], other: list[float], resamples: int = 2000) -> dict:
-    """Mean of other - first over units (worlds, or one world's draws), a 95% bootstrap interval, and the wins."""
+def paired(first: list[float], other: list[float], ids: list[int], resamples: int = 2000) -> dict:
+    """Mean of other - first over units (worlds, or one world's draws, named by `ids`), a 95%
+    bootstrap interval, the wins, the median, and the unit where other is furthest behind (a
+    mean can hide a few large losses)."""
     d = np.asarray(other) - np.asarray(first)
     rng = np.random.default_rng(0)
     means = d[rng.integers(0, len(d), (resamples, len(d)))].mean(axis=1)
+    worst = int(np.argmin(d))
     return {"diff_db": round(float(d.mean()), 2), "ci95": [round(float(np.percentile(means, q)), 2) for q in (2.5, 97.5)],
-            "wins": int((d > 0).sum()), "units": len(d)}
+            "wins": int((d > 0).sum()), "units": len(d), "median_db": round(float(np.median(d)), 2),
+            "worst": {"unit": ids[worst], "diff_db": round(float(d[worst]), 2)}}
 
 
 def main() -> None:
@@ -286,16 +291,18 @@ def main() -> None:
         # The unit of the interval: a world (the mean of its draws), or with one world, a draw of its noise.
         unit = "worlds" if len(worlds) > 1 else "draws"
         units = {n: [float(np.mean(b)) for b in bs] if unit == "worlds" else bs[0] for n, bs in per_world.items()}
+        ids = worlds if unit == "worlds" else list(range(a.draws))
         across = {"worlds": worlds, "draws": a.draws, "unit": unit,
                   "way_back_db": {n: [[round(v, 2) for v in b] for b in bs] for n, bs in per_world.items()},
                   "mean_way_back_db": {n: round(float(np.mean(vs)), 2) for n, vs in units.items()},
-                  f"against_{first}": {n: paired(units[first], vs) for n, vs in units.items() if n != first}}
+                  f"against_{first}": {n: paired(units[first], vs, ids) for n, vs in units.items() if n != first}}
         print(f"the way back over {len(worlds)} world(s) ({worlds[0]}..{worlds[-1]}), {a.draws} draw(s) each, per {unit[:-1]}:")
         for n, vs in units.items():
             line = f"{n:>12}: {np.mean(vs):.2f} dB"
             if n != first:
                 p = across[f"against_{first}"][n]
-                line += f", {p['diff_db']:+.2f} [{p['ci95'][0]:+.2f}, {p['ci95'][1]:+.2f}] against {first}, ahead in {p['wins']} of {p['units']} {unit}"
+                line += (f", {p['diff_db']:+.2f} [{p['ci95'][0]:+.2f}, {p['ci95'][1]:+.2f}] against {first}, ahead in {p['wins']} of {p['units']} {unit}"
+                         f"; median {p['median_db']:+.2f}, furthest behind {p['worst']['diff_db']:+.2f} ({unit[:-1]} {p['worst']['unit']})")
             print(line)
     record = {"command": " ".join(sys.argv), "seed": worlds[0], "sampler": f"{a.method}, {a.steps} steps",
               "steps_per_row": steps_per_row, "observe_outbound": a.observe_outbound, "covisible": a.covisible,

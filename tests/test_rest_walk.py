@@ -36,6 +36,12 @@ def test_draws_pair_rows_over_the_noise_and_draw_zero_is_the_single_walk(tmp_pat
     assert draws[0] == one["mean_psnr_db_by_phase"]["teacher_2"]["back"]  # draw 0 is the single walk
     paired = across["against_served"]["teacher_2"]
     assert paired["units"] == 2 and paired["ci95"][0] <= paired["diff_db"] <= paired["ci95"][1]
+    # The draw furthest behind, and the median (of two draws, their mean), from the rounded walks.
+    diffs = [t - s for t, s in zip(draws, across["way_back_db"]["served"][0])]
+    worst = min(range(2), key=lambda i: diffs[i])
+    assert paired["worst"]["unit"] == worst and abs(paired["worst"]["diff_db"] - diffs[worst]) <= 0.011, (paired, diffs)
+    assert abs(paired["median_db"] - sum(diffs) / 2) <= 0.011, (paired, diffs)
+    assert f"furthest behind {paired['worst']['diff_db']:+.2f} (draw {worst})" in many.stdout, many.stdout
     assert "2 draw(s) each, per draw" in many.stdout
 
 
