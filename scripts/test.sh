@@ -34,7 +34,7 @@ fi
 echo "==> cargo test (release: the overlap property tests sample millions of points)"
 cargo test --release --workspace
 echo "==> the criterion benches, each run once untimed (so that they keep building and running)"
-cargo test --release --workspace --benches
+cargo test --release --workspace --bench '*'
 
 echo "==> pytest (OpenCV convention tests, ONNX parity, the Python client, the viewer in Chromium)"
 # `cargo test` built target/release/worldpack for the integration tests, with the
