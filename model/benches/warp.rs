@@ -21,9 +21,9 @@ fn case<T: world::npy::Element>(name: &str) -> Vec<T> {
     world::npy::read::<T>(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display())).1
 }
 
+/// A row-major 4×4 camera-to-world matrix, flattened.
 fn pose(m: &[f64]) -> Pose {
-    let r = [[m[0], m[1], m[2]], [m[4], m[5], m[6]], [m[8], m[9], m[10]]];
-    Pose::from_rows(r, [m[3], m[7], m[11]]).expect("a reference pose is a proper rotation")
+    Pose::from_matrix_rows([0, 1, 2, 3].map(|i| [m[4 * i], m[4 * i + 1], m[4 * i + 2], m[4 * i + 3]])).expect("a reference pose is a proper rotation")
 }
 
 fn warp(c: &mut Criterion) {
