@@ -56,6 +56,7 @@ impl Model {
         let per = l.len();
         let draw = |step: Option<usize>| seeds.iter().flat_map(|&s| item_noise(s, step, per)).collect::<Vec<f32>>();
         let mut x = draw(None);
+        let mut history = None;
         for (i, &t) in sampler.timesteps.iter().enumerate() {
             let x_t = Tensor::new(shape.clone(), x);
             let timestep = Tensor::new(vec![batch], vec![t as f32; batch]);
@@ -63,7 +64,7 @@ impl Model {
             inputs.extend([("x_t", &x_t), ("timestep", &timestep), ("action", cond.action), ("rel_time", cond.rel_time)]);
             let eps = self.run(GraphRole::Denoiser(layout), &inputs)?.remove(0);
             let z = if sampler.injects_noise(i) { draw(Some(i)) } else { vec![0.0; x_t.data.len()] };
-            x = sampler.step(i, &x_t.data, &eps.data, &z);
+            x = sampler.step(i, &x_t.data, &eps.data, &z, &mut history);
         }
         Ok(Tensor::new(shape, x))
     }

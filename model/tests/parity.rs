@@ -209,7 +209,7 @@ fn samplers_follow_the_traces(dir: &Path) {
             let slice = |t: &Tensor, k: usize| Tensor::new(sample_shape.clone(), t.data[k * per..(k + 1) * per].to_vec());
             assert_close(&eps, &slice(&eps_ref, i), &format!("{method_name} step {i} eps"), tolerance(dir));
             let z = &noise.data[i * per..(i + 1) * per];
-            let next = Tensor::new(sample_shape.clone(), sampler.step(i, &x.data, &eps.data, z));
+            let next = Tensor::new(sample_shape.clone(), sampler.step(i, &x.data, &eps.data, z, &mut None));
             assert_close(&next, &slice(&xs, i + 1), &format!("{method_name} step {i} state"), tolerance(dir));
             // Free-running from the same start noise, Rust alone.
             let fx = Tensor::new(sample_shape.clone(), free_run.clone());
@@ -217,7 +217,7 @@ fn samplers_follow_the_traces(dir: &Path) {
             call.push(("x_t", &fx));
             call.push(("timestep", &ts));
             let feps = graph.run(&call).unwrap().remove(0);
-            free_run = sampler.step(i, &free_run, &feps.data, z);
+            free_run = sampler.step(i, &free_run, &feps.data, z, &mut None);
         }
         let last = xs.shape[0] - 1;
         assert_close(&Tensor::new(sample_shape.clone(), free_run), &Tensor::new(sample_shape.clone(), xs.data[last * per..].to_vec()),
