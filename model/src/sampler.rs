@@ -79,10 +79,10 @@ impl Sampler {
             // A student learned its own grid's jumps and nothing else: whatever
             // was asked, it runs them, by deterministic DDIM.
             Some(d) => (d.timesteps.clone(), Method::Ddim, 0.0),
-            // Trailing: total-1 down in equal strides, the last call at total/steps
-            // noise rather than at t = 0. The evenly spread grid's last call, at
-            // t = 0, is nearly an identity, and its step size would make the
-            // second-order correction before it blow up.
+            // Trailing: from total-1 down in strides of total/steps, the last call
+            // at timestep total/steps - 1 rather than 0. The evenly spread grid's
+            // last call, at t = 0, is nearly an identity, and the jump before it
+            // is too long for the second-order correction (it blows up).
             None if method == Method::Dpm2m => ((0..steps).map(|i| total - 1 - i * total / steps).collect(), method, eta),
             None => {
                 // unique(round(linspace(0, total-1, steps))), round half to even as numpy does.
