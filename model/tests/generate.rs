@@ -50,6 +50,38 @@ fn sampling_is_seeded_and_finite() {
     assert!(err.starts_with("seeds:"), "{err}");
 }
 
+/// DPM-Solver++(2M) needs the sampling loop to carry each step's clean
+/// estimate to the next: `Model::sample` must make what a hand-written loop
+/// carrying it makes, and not what the same loop makes when it drops it.
+#[test]
+fn the_sampling_loop_carries_the_solvers_history() {
+    let (m, context, action, rel_time) = small_model_and_reference_conditioning();
+    let sampler = Sampler::new(&m.manifest().diffusion, 4, Method::Dpm2m, 0.0).unwrap();
+    let seeds = [5, 6];
+    let got = m.sample("worldpack", &Conditioning { context: &context, action: &action, rel_time: &rel_time }, &sampler, &seeds).unwrap();
+    let by_hand = |carry: bool| {
+        let per = got.data.len() / 2;
+        let mut x: Vec<f32> = seeds.iter().flat_map(|&s| gaussian(s, per)).collect();
+        let mut history = None;
+        for (i, &t) in sampler.timesteps.iter().enumerate() {
+            let x_t = Tensor::new(got.shape.clone(), x.clone());
+            let timestep = Tensor::new(vec![2], vec![t as f32; 2]);
+            let mut inputs: Vec<(&str, &Tensor)> = context.iter().map(|(k, v)| (k.as_str(), v)).collect();
+            inputs.extend([("x_t", &x_t), ("timestep", &timestep), ("action", &action), ("rel_time", &rel_time)]);
+            let eps = m.run(model::GraphRole::Denoiser("worldpack"), &inputs).unwrap().remove(0);
+            if !carry {
+                history = None;
+            }
+            x = sampler.step(i, &x, &eps.data, &vec![0.0; x.len()], &mut history);
+        }
+        x
+    };
+    assert_eq!(got.data, by_hand(true));
+    let first_order = by_hand(false);
+    let apart = got.data.iter().zip(&first_order).map(|(a, b)| (a - b).abs()).fold(0.0f32, f32::max);
+    assert!(apart > 1e-3, "the second-order term changed nothing ({apart})");
+}
+
 /// Item `i` of a batch: its context, action and relative time alone (batch 1).
 fn item(context: &[(String, Tensor)], action: &Tensor, rel_time: &Tensor, i: usize) -> (Vec<(String, Tensor)>, Tensor, Tensor) {
     let one = |t: &Tensor| {
