@@ -8,7 +8,8 @@
 #   ./scripts/distill.sh head      # replaces that head with the student's own: trained on its predictions,
 #                                  # MSE + HEAD_EDGE (1) x the gradient difference loss, HEAD_STEPS (4000)
 #   ./scripts/distill.sh pair      # then shows the teacher's head's frame and keeps its own head's
-#                                  # (the memory's context for the next frames)
+#                                  # (the memory's context for the next frames), in the warp's holes near
+#                                  # where it landed with the warp's colours (HOLE_FILL, 7; 0: off)
 # RUN (runs/distill/<N>step) holds the run; PY runs `python -m worldpack_model`
 # (default ./scripts/model.sh, which sets up .venv-train).
 set -euo pipefail
@@ -45,6 +46,6 @@ case "${1:-}" in
     "${py[@]}" fusion-export --run "$run/head" --model "$bare" --out "$out" --data "$run/fusion-data" ;;
   pair)
     data=(); [ -f "$run/fusion-data/truth.npy" ] && data=(--data "$run/fusion-data")
-    "${py[@]}" fusion-pair --kept "$out" --shown "$teacher" --out "$out" "${data[@]}" ;;
+    "${py[@]}" fusion-pair --kept "$out" --shown "$teacher" --out "$out" --hole-fill "${HOLE_FILL:-7}" "${data[@]}" ;;
   *) sed -n '2,13p' "$0"; exit 2 ;;
 esac

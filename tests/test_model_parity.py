@@ -101,6 +101,30 @@ def test_a_head_pair_shows_its_shown_model_head(model):
     assert float(np.abs(kept - image).max()) > 0.01, f"{model.name}: the frame kept is the frame shown"
 
 
+FILLED = [m for m in PAIRED if json.loads((m / "manifest.json").read_text())["fusion"]["pair"].get("hole_fill")]
+
+
+@pytest.mark.parametrize("model", FILLED, ids=[m.name for m in FILLED])
+def test_a_head_pairs_hole_fill_keeps_a_bright_ground_bright(model):
+    """fusion.fill_holes_from_warp as exported: a bright ground that the warp
+    reached down to row 40, a darker guess below it. Within K // 2 rows of
+    the landed ground the kept frame takes the ground's brightness; deeper in
+    the hole it stays the head's (the own head alone keeps the band as dark
+    as the rows below it)."""
+    spec = json.loads((model / "manifest.json").read_text())["fusion"]
+    k = spec["pair"]["hole_fill"]
+    h, w = spec["inputs"][0]["shape"][2:]
+    landed = np.zeros((1, 1, h, w), np.float32)
+    landed[:, :, :40] = 1
+    reference = np.full((1, 3, h, w), 0.8, np.float32)
+    reference[:, :, 40:] = -0.6  # the fused reference's unlanded pixels are not the world's: the fill must not use them
+    predicted = np.full((1, 3, h, w), 0.8, np.float32)
+    predicted[:, :, 40:] = -0.2
+    _, kept = session(spec["file"], model).run(None, {"predicted": predicted, "reference": reference, "landed": landed})
+    band, deeper = float(kept[0, :, 40:40 + k // 2].mean()), float(kept[0, :, 40 + k // 2 + 2:].mean())
+    assert band > deeper + 0.4, f"{model.name}: the band next to the landed ground ({band:.2f}) is not brighter than deeper ({deeper:.2f})"
+
+
 @pytest.mark.parametrize("name,file,spec", graphs(), ids=[g[0] for g in graphs()])
 def test_graph_matches_pytorch(name, file, spec):
     arrays = load(MANIFEST["reference"]["graphs"][name])

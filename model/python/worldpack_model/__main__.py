@@ -151,6 +151,8 @@ def main() -> None:
     p.add_argument("--shown", type=Path, required=True, help="a fused model folder whose head makes the frame shown")
     p.add_argument("--out", type=Path, required=True, help="the new model folder (may be --kept itself)")
     p.add_argument("--data", type=Path, help="a fusion-data folder whose last examples become the references")
+    p.add_argument("--hole-fill", type=int, default=0, help="an odd window K: in the warp's holes within K // 2 pixels of "
+                   "where it landed, the kept frame's K x K mean becomes the warp's colours diffused into the hole (0: off)")
 
     a = ap.parse_args()
     import torch
@@ -179,7 +181,7 @@ def main() -> None:
     elif a.stage == "fusion-pair":
         from . import fusion
 
-        fusion.pair(a.kept, a.shown, a.out, a.data)
+        fusion.pair(a.kept, a.shown, a.out, a.data, a.hole_fill)
     elif a.stage == "train-ae":
         train.train_autoencoder(a.data, a.run, a.steps, a.batch, a.lr, a.device, a.minutes)
     elif a.stage == "encode":

@@ -71,12 +71,32 @@ class HeadPair(nn.Module):
     different losses win each: MSE for the one, MSE with the gradient
     difference term, which keeps edges, for the other."""
 
-    def __init__(self, shown: FusionHead, kept: FusionHead):
+    def __init__(self, shown: FusionHead, kept: FusionHead, hole_fill: int = 0):
         super().__init__()
-        self.shown, self.kept = shown, kept
+        self.shown, self.kept, self.hole_fill = shown, kept, hole_fill
 
     def forward(self, predicted, reference, landed):
-        return self.shown(predicted, reference, landed), self.kept(predicted, reference, landed)
+        kept = self.kept(predicted, reference, landed)
+        if self.hole_fill:
+            kept = fill_holes_from_warp(kept, reference, landed, self.hole_fill)
+        return self.shown(predicted, reference, landed), kept
+
+
+def fill_holes_from_warp(frame, reference, landed, k: int):
+    """`frame` with, in the warp's holes that lie within k // 2 pixels of
+    where it landed, its k x k local mean replaced by the warp's own colours
+    diffused into the hole (a normalised convolution), its detail kept.
+
+    A head fills a hole with what its training frames had there on average;
+    in a world unlike that average (a bright ground near the camera) the
+    kept frame comes out darker, and every later frame conditioned on it
+    inherits the smear (docs/benchmarks.md, world 3). The nearest landed
+    pixels carry this world's colours instead."""
+    pool = lambda x: F.avg_pool2d(x, k, stride=1, padding=k // 2, count_include_pad=False)
+    near = pool(landed)
+    diffused = pool(reference * landed) / (near + 1e-3)
+    reach = (near > 1e-3).float()
+    return frame + (diffused - pool(frame)) * (1 - landed) * reach
 
 
 def head_of(model: Path) -> tuple[FusionHead, dict]:
@@ -259,10 +279,13 @@ def export(run: Path, model: Path, out: Path, data: Path | None = None) -> None:
     print(f"wrote {out} ({manifest['fusion']['parameters']} fusion parameters)")
 
 
-def pair(kept: Path, shown: Path, out: Path, data: Path | None = None) -> None:
+def pair(kept: Path, shown: Path, out: Path, data: Path | None = None, hole_fill: int = 0) -> None:
     """A copy of the model folder `kept` at `out` whose head is a `HeadPair`:
     the frame shown is `shown`'s head's, the frame the memory keeps is
-    `kept`'s own head's (the graph's second output, `kept`)."""
+    `kept`'s own head's (the graph's second output, `kept`), its holes
+    filled from the warp when `hole_fill` (an odd window) is set."""
+    if hole_fill and (hole_fill < 3 or hole_fill % 2 == 0):
+        raise SystemExit(f"--hole-fill: an odd window of at least 3 pixels, or 0 for none; got {hole_fill}")
     from .export import to_onnx
     import onnx
     import tempfile
@@ -277,7 +300,7 @@ def pair(kept: Path, shown: Path, out: Path, data: Path | None = None) -> None:
     with tempfile.TemporaryDirectory() as tmp:
         staged = Path(tmp) / out.name
         shutil.copytree(kept, staged)
-        heads = HeadPair(shown_head, kept_head).eval()
+        heads = HeadPair(shown_head, kept_head, hole_fill).eval()
         args = reference_images(data, h, w)
         outputs = ("image", "kept")
         onnx.save(to_onnx(heads, args, list(INPUTS), list(outputs)), staged / kept_spec["file"])
@@ -288,10 +311,12 @@ def pair(kept: Path, shown: Path, out: Path, data: Path | None = None) -> None:
         spec = {k: v for k, v in kept_spec.items() if k not in ("trained", "architecture", "parameters")}
         spec["outputs"] = [kept_spec["outputs"][0], dict(kept_spec["outputs"][0], name="kept",
                                                          meaning="the frame the memory keeps (re-encoded as later frames' context), RGB")]
-        spec["architecture"] = f"two heads on the same inputs, one for the frame shown and one for the frame kept; each: {kept_spec['architecture']}"
+        spec["architecture"] = f"two heads on the same inputs, one for the frame shown and one for the frame kept; each: {kept_spec['architecture']}" + (
+            f"; the kept frame's {hole_fill}x{hole_fill} local mean in the warp's holes replaced by the warp's colours diffused into them"
+            if hole_fill else "")
         spec["parameters"] = kept_spec["parameters"] + shown_spec["parameters"]
         spec["pair"] = {"shown": {"model": shown.name, "trained": shown_spec.get("trained")},
-                        "kept": {"model": kept.name, "trained": kept_spec.get("trained")}}
+                        "kept": {"model": kept.name, "trained": kept_spec.get("trained")}, "hole_fill": hole_fill}
         manifest["name"] = out.name
         manifest["fusion"] = spec
         (staged / "manifest.json").write_text(json.dumps(manifest, indent=1))
