@@ -69,7 +69,9 @@ class HeadPair(nn.Module):
     it as the context of the frames after it; model/src/predict.rs). A frame
     shown is judged on its own, one kept by the frames conditioned on it, and
     different losses win each: MSE for the one, MSE with the gradient
-    difference term, which keeps edges, for the other."""
+    difference term, which keeps edges, for the other. `hole_fill` K > 0:
+    the kept frame's holes next to where the warp landed take the warp's
+    colours (`fill_holes_from_warp`)."""
 
     def __init__(self, shown: FusionHead, kept: FusionHead, hole_fill: int = 0):
         super().__init__()
