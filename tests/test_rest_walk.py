@@ -57,7 +57,9 @@ def test_a_reused_row_pairs_as_if_it_were_walked_again(tmp_path):
     # The same step seeds give the same frames, so the walked row repeats itself exactly.
     assert second["across_worlds"]["way_back_db"] == first["across_worlds"]["way_back_db"]
     was, now = first["across_worlds"]["against_served"]["teacher_2"], second["across_worlds"]["against_served"]["teacher_2"]
-    assert abs(was["diff_db"] - now["diff_db"]) <= 0.01 and was["wins"] == now["wins"], (was, now)  # reused values are rounded
+    # The reused way-back values are rounded to 0.01 dB (their mean moves by up to 0.005) and
+    # both differences are rounded again (0.005 each): up to 0.015 apart.
+    assert abs(was["diff_db"] - now["diff_db"]) <= 0.015 + 1e-9 and was["wins"] == now["wins"], (was, now)
     assert second["rows"]["served"]["steps"] == first["rows"]["served"]["steps"]
     refused = walk(tmp_path, "refused", "--draws", "3", "--reuse", cached, "--row", TEACHER_2)
     assert refused.returncode != 0 and "that walk had draws 2, this one 3" in refused.stderr, refused.stderr
