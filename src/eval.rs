@@ -82,6 +82,10 @@ pub struct Options {
     /// A geometry-model row to run again warping only observed frames its own plan selected (no retrieval beyond its context), as a row "NAME_plan_warps" (repeatable).
     #[arg(long = "plan-warps")]
     pub plan_warps: Vec<String>,
+    /// A model row whose autoencoder's reconstruction of the true frames, decode(encode(truth)), is
+    /// scored as a row "NAME_autoencoder" (repeatable): the ceiling under every frame the model makes.
+    #[arg(long = "reconstruct")]
+    pub reconstruct: Vec<String>,
     /// Run only these model rows (repeatable; default: every row), e.g. only NAME_covisible.
     #[arg(long = "only")]
     pub only: Vec<String>,
@@ -113,6 +117,7 @@ impl Options {
             strip: self.strip.clone(),
             strip_frames: self.strip_frames,
             composites: self.composites.clone(),
+            reconstruct: self.reconstruct.clone(),
             covisible: self.covisible.clone(),
             plan_warps: self.plan_warps.clone(),
             only: self.only.clone(),
@@ -135,7 +140,9 @@ pub fn run(o: &Options) -> Result<()> {
     let e = evaluate(&o.settings(), &progress)?;
     print(&e.summary);
     print_pooled(&e.pooled, &e.against);
-    print_stratum(&e.revisit, &e.against);
+    for s in &e.strata {
+        print_stratum(s, &e.against);
+    }
     if let Some(strip) = &e.strip {
         println!("\nwrote {} (rows: {}; trajectory {}, {}; frames {:?})", strip.path.display(), strip.rows.join(", "), strip.trajectory, strip.rule, strip.frames);
     }
@@ -156,18 +163,24 @@ fn print_stratum(s: &StratumPooled, against: &str) {
 }
 
 fn print_pooled_rows(rows: &[PooledRow]) {
-    println!("{:<28} {:>24} {:>22} {:>26} {:>26} {:>22}", "row", "PSNR", "SSIM", "PSNR diff", "SSIM diff", "sharpness");
+    println!(
+        "{:<28} {:>24} {:>22} {:>26} {:>26} {:>22} {:>24} {:>26} {:>22}",
+        "row", "PSNR", "SSIM", "PSNR diff", "SSIM diff", "sharpness", "holes PSNR", "holes PSNR diff", "holes sharpness"
+    );
     let iv = |i: &Interval, d: usize| format!("{:.d$} [{:.d$}, {:.d$}]", i.mean, i.lo, i.hi);
     let opt = |i: &Option<Interval>, d: usize| i.as_ref().map_or("—".into(), |i| iv(i, d));
     for r in rows {
         println!(
-            "{:<28} {:>24} {:>22} {:>26} {:>26} {:>22}",
+            "{:<28} {:>24} {:>22} {:>26} {:>26} {:>22} {:>24} {:>26} {:>22}",
             r.row,
             iv(&r.psnr, 2),
             iv(&r.ssim, 3),
             opt(&r.psnr_diff, 2),
             opt(&r.ssim_diff, 3),
-            opt(&r.sharpness, 2)
+            opt(&r.sharpness, 2),
+            opt(&r.holes_psnr, 2),
+            opt(&r.holes_psnr_diff, 2),
+            opt(&r.holes_sharpness, 2)
         );
     }
 }

@@ -92,6 +92,20 @@ fn reduced_rollout_suite_runs_resumes_and_scores_every_frame() {
     for r in revisit["pooled"].as_array().unwrap() {
         assert_eq!(r["psnr"]["values"].as_u64().unwrap(), frames, "{r}");
     }
+    // New ground is the rest of the return leg.
+    let new_ground = &first["strata"][1];
+    assert_eq!(new_ground["name"], "new_ground");
+    let all_frames = copy["psnr"]["values"].as_u64().unwrap();
+    assert_eq!(frames + new_ground["frames"].as_u64().unwrap(), all_frames, "{new_ground}");
+    // The holes measure: the holes are the fused warp's of the exploration, so every row
+    // is scored over the same frames there, and their sharpness with them.
+    let values = |r: &Value, k: &str| r[k]["values"].as_u64().unwrap_or(0);
+    let holes = values(copy, "holes_psnr");
+    assert!(holes <= all_frames, "{copy}");
+    for r in pooled {
+        assert_eq!(values(r, "holes_psnr"), holes, "every row is scored over the same holes: {r}");
+        assert!(values(r, "holes_sharpness") <= holes, "{r}");
+    }
 
     // A second run reuses every row and reproduces the results.
     let log = ok(&args);
@@ -338,7 +352,7 @@ fn study_pairs_every_condition_and_resumes() {
     }
 
     let strata = study["strata"].as_array().unwrap();
-    assert_eq!(strata.len(), 6);
+    assert_eq!(strata.len(), 7);
     assert_eq!(strata[5]["stratum"], "revisit");
     assert_eq!(strata[0]["stratum"], "all");
     assert_eq!(strata[0]["targets"], study["targets"]);

@@ -21,7 +21,7 @@ use crate::probe::{FrameScore, Predictor, Row, encode_all};
 use crate::program::{ProgramError, io, load_model, setting, write_atomically};
 use crate::rollout::{FvdEstimate, Scorer, clip_fvd, rollout, rollout_frames};
 use crate::stats::{PooledRow, pooled};
-use crate::strata::{EXPLORED_STRIDE, REVISIT_SHARE, Stratum, explored_share};
+use crate::strata::{EXPLORED_STRIDE, Stratum, explored_share};
 use crate::suite::Trajectory;
 use crate::summary::{Summary, cells_of, summarise};
 
@@ -76,6 +76,9 @@ pub struct Settings {
     /// Model rows whose predictions fill the fused warp's holes in a
     /// composite row each (with the references; empty: the baseline).
     pub composites: Vec<String>,
+    /// Model rows whose autoencoder's reconstruction of the true frames,
+    /// decode(encode(truth)), is scored as a row "NAME_autoencoder" each.
+    pub reconstruct: Vec<String>,
 }
 
 /// What the run is doing, for a progress display.
@@ -140,7 +143,8 @@ struct RowKey {
     feature_networks: [Option<String>; 3],
 }
 
-const SCORES: &str = "psnr ssim sharpness";
+// "holes": the PSNR and sharpness in the warp's holes (rows saved before them are recomputed).
+const SCORES: &str = "psnr ssim sharpness holes";
 
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct FvdCell {
@@ -186,7 +190,8 @@ pub struct Evaluation {
     pub summary: Summary,
     pub pooled: Vec<PooledRow>,
     pub against: String,
-    pub revisit: StratumPooled,
+    /// The revisit and new-ground strata.
+    pub strata: Vec<StratumPooled>,
     pub strip: Option<Strip>,
     pub results: PathBuf,
 }
@@ -271,6 +276,12 @@ pub fn evaluate(s: &Settings, progress: &dyn Fn(Progress)) -> Result<Evaluation,
         }
         let predictor = Predictor::PlanWarps { model, policy: policy.clone(), sampler: sampler(model)? };
         rows.push((Row { name: format!("{name}_plan_warps"), predictor }, m));
+    }
+    for name in &s.reconstruct {
+        let Some((model, m)) = rows.iter().find(|(r, _)| &r.name == name).and_then(|(r, m)| Some((r.predictor.model()?, *m))) else {
+            return Err(setting("--reconstruct", format!("no model row called {name:?}")));
+        };
+        rows.push((Row { name: format!("{name}_autoencoder"), predictor: Predictor::Reconstruct { model } }, m));
     }
     if let Some(dup) = rows.iter().enumerate().find(|(i, (r, _))| rows[..*i].iter().any(|(q, _)| q.name == r.name)) {
         return Err(setting("--extra", format!("two rows are called {:?}", dup.1.0.name)));
@@ -364,7 +375,7 @@ pub fn evaluate(s: &Settings, progress: &dyn Fn(Progress)) -> Result<Evaluation,
     let scores: Vec<(&str, &[Vec<FrameScore>])> = results.iter().map(|(n, r)| (n.as_str(), r.frames.as_slice())).collect();
     let summary = summarise(&cells, &scores);
     let pooled_rows = pooled(&scores, &against, POOLED_REPS).expect("the row was checked above");
-    let revisit = revisit_stratum(&trajs, &scores, &against)?;
+    let strata = explored_strata(&trajs, &scores, &against)?;
     let strip = if s.strip.is_empty() { None } else { strip(s, &trajs, &rows, &scores, &against)? };
     let json = serde_json::json!({
         "format": "worldpack-eval/1",
@@ -380,7 +391,7 @@ pub fn evaluate(s: &Settings, progress: &dyn Fn(Progress)) -> Result<Evaluation,
         "tasks": summary.tasks,
         "pooled": pooled_rows,
         "paired_against": against,
-        "strata": [&revisit],
+        "strata": &strata,
         "strip": strip,
         "labels": results.iter().map(|(n, _)| (n.clone(), row_label(n))).collect::<BTreeMap<_, _>>(),
         "fvd": results.iter().map(|(n, r)| (n.clone(), &r.fvd)).collect::<BTreeMap<_, _>>(),
@@ -390,7 +401,7 @@ pub fn evaluate(s: &Settings, progress: &dyn Fn(Progress)) -> Result<Evaluation,
     });
     let path = s.out.join("results.json");
     write_atomically(&path, &serde_json::to_string(&json)?)?;
-    Ok(Evaluation { summary, pooled: pooled_rows, against, revisit, strip, results: path })
+    Ok(Evaluation { summary, pooled: pooled_rows, against, strata, strip, results: path })
 }
 
 /// Rolls the rule's trajectory out again for each strip row, with the noise
@@ -436,26 +447,31 @@ fn strip(
     }))
 }
 
-/// The return-leg frames whose view an exploration frame showed for the most
-/// part ([`Stratum::Revisit`]), every row pooled over just those frames.
-fn revisit_stratum(trajs: &[Trajectory], scores: &[(&str, &[Vec<FrameScore>])], against: &str) -> Result<StratumPooled, ProgramError> {
-    let stratum = Stratum::Revisit;
-    // Which generated frames of each trajectory are revisits (every row scores the same frames).
-    let mut revisits: Vec<Vec<bool>> = Vec::with_capacity(trajs.len());
+/// The return-leg frames split by how much of their view the exploration
+/// showed: revisits ([`Stratum::Revisit`], where memory can bring the scene
+/// back) and new ground ([`Stratum::NewGround`], where the model has to
+/// paint), every row pooled over just those frames.
+fn explored_strata(trajs: &[Trajectory], scores: &[(&str, &[Vec<FrameScore>])], against: &str) -> Result<Vec<StratumPooled>, ProgramError> {
+    // Each generated frame's explored share (every row scores the same frames).
+    let mut explored: Vec<Vec<f64>> = Vec::with_capacity(trajs.len());
     for (i, traj) in trajs.iter().enumerate() {
         let frusta = traj.frusta()?;
-        revisits.push(scores[0].1[i].iter().map(|f| explored_share(traj, &frusta, f.t, EXPLORED_STRIDE) >= REVISIT_SHARE).collect());
+        explored.push(scores[0].1[i].iter().map(|f| explored_share(traj, &frusta, f.t, EXPLORED_STRIDE)).collect());
     }
-    let kept: Vec<Vec<Vec<FrameScore>>> = scores
-        .iter()
-        .map(|(_, r)| r.iter().zip(&revisits).map(|(t, keep)| t.iter().zip(keep).filter(|(_, k)| **k).map(|(f, _)| *f).collect()).collect())
-        .collect();
-    let rows: Vec<(&str, &[Vec<FrameScore>])> = scores.iter().zip(&kept).map(|((n, _), k)| (*n, k.as_slice())).collect();
-    Ok(StratumPooled {
-        name: stratum.name(),
-        describe: stratum.describe(),
-        frames: revisits.iter().flatten().filter(|&&k| k).count(),
-        trajectories: revisits.iter().filter(|t| t.iter().any(|&k| k)).count(),
-        pooled: pooled(&rows, against, POOLED_REPS).expect("the row is one of these"),
-    })
+    let stratum = |stratum: Stratum| {
+        let members: Vec<Vec<bool>> = explored.iter().map(|t| t.iter().map(|&e| stratum.contains_explored(e)).collect()).collect();
+        let kept: Vec<Vec<Vec<FrameScore>>> = scores
+            .iter()
+            .map(|(_, r)| r.iter().zip(&members).map(|(t, keep)| t.iter().zip(keep).filter(|(_, k)| **k).map(|(f, _)| *f).collect()).collect())
+            .collect();
+        let rows: Vec<(&str, &[Vec<FrameScore>])> = scores.iter().zip(&kept).map(|((n, _), k)| (*n, k.as_slice())).collect();
+        StratumPooled {
+            name: stratum.name(),
+            describe: stratum.describe(),
+            frames: members.iter().flatten().filter(|&&k| k).count(),
+            trajectories: members.iter().filter(|t| t.iter().any(|&k| k)).count(),
+            pooled: pooled(&rows, against, POOLED_REPS).expect("the row is one of these"),
+        }
+    };
+    Ok(vec![stratum(Stratum::Revisit), stratum(Stratum::NewGround)])
 }

@@ -376,7 +376,7 @@ mod tests {
     use super::*;
 
     fn score(t: usize, psnr: f64) -> FrameScore {
-        FrameScore { t, psnr, ssim: psnr / 100.0, lpips: None, dreamsim: None, sharpness: None, psnr_in_warp: None, psnr_out_warp: None }
+        FrameScore { t, psnr, ssim: psnr / 100.0, lpips: None, dreamsim: None, sharpness: None, psnr_in_warp: None, psnr_out_warp: None, sharpness_out_warp: None }
     }
 
     /// Rows: baseline, worldpack (+1 dB on aba, +3 dB on abca), copy (−2 dB

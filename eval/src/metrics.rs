@@ -99,23 +99,33 @@ pub fn psnr_where(a: &[u8], b: &[u8], mask: &[bool], inside: bool, min_pixels: u
 /// lowers it, so a prediction's energy over the truth's tells a sharp frame
 /// from a smooth one that happens to score well on PSNR.
 pub fn gradient_energy(rgb: &[u8], width: usize, height: usize) -> f64 {
+    gradient_energy_where(rgb, width, height, &|_| true).0
+}
+
+/// [`gradient_energy`] over the neighbour pairs whose two pixels `keep`
+/// (by pixel index), and how many pairs that was.
+fn gradient_energy_where(rgb: &[u8], width: usize, height: usize, keep: &dyn Fn(usize) -> bool) -> (f64, usize) {
     assert_eq!(rgb.len(), width * height * 3, "gradient_energy: not an RGB image of the given size");
     let luma: Vec<f64> = rgb.chunks_exact(3).map(|p| 0.299 * p[0] as f64 + 0.587 * p[1] as f64 + 0.114 * p[2] as f64).collect();
     let (mut sum, mut n) = (0.0, 0usize);
     for y in 0..height {
         for x in 0..width {
-            let v = luma[y * width + x];
-            if x + 1 < width {
-                sum += (luma[y * width + x + 1] - v).powi(2);
+            let i = y * width + x;
+            if !keep(i) {
+                continue;
+            }
+            let v = luma[i];
+            if x + 1 < width && keep(i + 1) {
+                sum += (luma[i + 1] - v).powi(2);
                 n += 1;
             }
-            if y + 1 < height {
-                sum += (luma[(y + 1) * width + x] - v).powi(2);
+            if y + 1 < height && keep(i + width) {
+                sum += (luma[i + width] - v).powi(2);
                 n += 1;
             }
         }
     }
-    if n == 0 { 0.0 } else { sum / n as f64 }
+    (if n == 0 { 0.0 } else { sum / n as f64 }, n)
 }
 
 /// The prediction's gradient energy over the truth's: 1 as sharp as the
@@ -123,6 +133,19 @@ pub fn gradient_energy(rgb: &[u8], width: usize, height: usize) -> f64 {
 pub fn sharpness_ratio(predicted: &[u8], truth: &[u8], width: usize, height: usize) -> Option<f64> {
     let reference = gradient_energy(truth, width, height);
     (reference > 0.0).then(|| gradient_energy(predicted, width, height) / reference)
+}
+
+/// [`sharpness_ratio`] over the neighbour pairs whose two pixels have
+/// `mask == inside` (the warp's holes, say); `None` with fewer than
+/// `min_pairs` such pairs or a flat truth there.
+pub fn sharpness_ratio_where(predicted: &[u8], truth: &[u8], width: usize, height: usize, mask: &[bool], inside: bool, min_pairs: usize) -> Option<f64> {
+    assert_eq!(mask.len(), width * height, "sharpness_ratio_where: one mask entry per pixel");
+    let keep = |i: usize| mask[i] == inside;
+    let (reference, n) = gradient_energy_where(truth, width, height, &keep);
+    if n < min_pairs.max(1) || reference <= 0.0 {
+        return None;
+    }
+    Some(gradient_energy_where(predicted, width, height, &keep).0 / reference)
 }
 
 fn gaussian_window() -> [f64; WINDOW] {
@@ -246,6 +269,24 @@ mod tests {
         let k = gaussian_window();
         assert!((k.iter().sum::<f64>() - 1.0).abs() < 1e-12);
         assert!((0..WINDOW).all(|i| (k[i] - k[WINDOW - 1 - i]).abs() < 1e-15));
+    }
+
+    #[test]
+    fn the_sharpness_ratio_in_a_mask_sees_only_the_pairs_inside_it() {
+        let (w, h) = (8, 8);
+        // Stripes in the left half, flat in the right; the prediction flattens the left half.
+        let truth: Vec<u8> = (0..w * h).flat_map(|i| if i % w < 4 && (i % w) % 2 == 0 { [255u8; 3] } else { [0u8; 3] }).collect();
+        let mut predicted = truth.clone();
+        for i in 0..w * h {
+            if i % w < 4 {
+                predicted[3 * i..3 * i + 3].copy_from_slice(&[128; 3]);
+            }
+        }
+        let left: Vec<bool> = (0..w * h).map(|i| i % w < 4).collect();
+        assert_eq!(sharpness_ratio_where(&predicted, &truth, w, h, &left, true, 1), Some(0.0), "the flattened stripes keep no edge");
+        assert_eq!(sharpness_ratio_where(&truth, &truth, w, h, &left, true, 1), Some(1.0));
+        assert_eq!(sharpness_ratio_where(&predicted, &truth, w, h, &left, false, 1), None, "the right half is flat in the truth");
+        assert_eq!(sharpness_ratio_where(&truth, &truth, w, h, &left, true, 1000), None, "too few pairs");
     }
 
     #[test]

@@ -14,7 +14,7 @@ use model::warp::Warped;
 use model::{Model, ModelError, Request, Sampler, Tensor, WarpSource};
 use serde::Serialize;
 
-use crate::metrics::{DepthTally, psnr, psnr_where, sharpness_ratio, ssim};
+use crate::metrics::{DepthTally, psnr, psnr_where, sharpness_ratio, sharpness_ratio_where, ssim};
 use crate::reproject::{reproject, reproject_fused};
 use crate::suite::{SuiteError, Trajectory};
 
@@ -50,6 +50,9 @@ pub enum Predictor<'a> {
     /// not the best-overlap frames of all memory: a policy without retrieval
     /// (nearest frame packing) stays without it; rollouts only.
     PlanWarps { model: &'a Model, policy: Policy, sampler: Sampler },
+    /// The true frame through the model's autoencoder, decode(encode(truth)):
+    /// the ceiling under every frame the model makes; rollouts only.
+    Reconstruct { model: &'a Model },
 }
 
 
@@ -59,7 +62,19 @@ pub const FUSED_FRAMES: usize = 3;
 /// How the non-learned rows make a frame; a saved reference row made by another rule is recomputed.
 pub const REFERENCE_RULES: &str = "model::warp (depth 0 at infinity); holes keep the best frame's pixel; fused: 3 frames, 2 fill rounds";
 
-impl Predictor<'_> {
+impl<'a> Predictor<'a> {
+    /// The model a learned row runs (none for the non-learned references).
+    pub fn model(&self) -> Option<&'a Model> {
+        match self {
+            Predictor::Model { model, .. }
+            | Predictor::Composite { model, .. }
+            | Predictor::CoVisible { model, .. }
+            | Predictor::PlanWarps { model, .. }
+            | Predictor::Reconstruct { model } => Some(*model),
+            Predictor::Copy | Predictor::Reproject | Predictor::ReprojectFused => None,
+        }
+    }
+
     /// The memory policy a row selects with (references: the best-overlap frames).
     pub fn policy(&self) -> Policy {
         match self {
@@ -67,7 +82,7 @@ impl Predictor<'_> {
             | Predictor::Composite { policy, .. }
             | Predictor::CoVisible { policy, .. }
             | Predictor::PlanWarps { policy, .. } => policy.clone(),
-            Predictor::Copy | Predictor::Reproject => Policy::best_overlap(),
+            Predictor::Copy | Predictor::Reproject | Predictor::Reconstruct { .. } => Policy::best_overlap(),
             Predictor::ReprojectFused => Policy::best_overlap_frames(FUSED_FRAMES),
         }
     }
@@ -99,6 +114,10 @@ pub struct FrameScore {
     pub psnr_in_warp: Option<f64>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub psnr_out_warp: Option<f64>,
+    /// The sharpness ratio over the rest, the warp's holes: where memory has
+    /// no pixels and the model has to paint (`worldpack eval`'s holes measure).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sharpness_out_warp: Option<f64>,
 }
 
 impl FrameScore {
@@ -113,6 +132,18 @@ impl FrameScore {
             sharpness: sharpness_ratio(predicted, truth, w, h),
             psnr_in_warp: None,
             psnr_out_warp: None,
+            sharpness_out_warp: None,
+        }
+    }
+
+    /// [`FrameScore::of`] plus the PSNR where the warp `landed` and in its
+    /// holes, and the sharpness ratio in the holes.
+    pub fn of_with_holes(t: usize, predicted: &[u8], truth: &[u8], w: usize, h: usize, landed: &[bool]) -> FrameScore {
+        FrameScore {
+            psnr_in_warp: psnr_where(predicted, truth, landed, true, MASK_MIN_PIXELS),
+            psnr_out_warp: psnr_where(predicted, truth, landed, false, MASK_MIN_PIXELS),
+            sharpness_out_warp: sharpness_ratio_where(predicted, truth, w, h, landed, false, MASK_MIN_PIXELS),
+            ..FrameScore::of(t, predicted, truth, w, h)
         }
     }
 }
@@ -325,15 +356,7 @@ pub fn probe_trajectory(
             (t, warped)
         })
         .collect();
-    let score = |t: usize, predicted: &[u8]| {
-        let truth = traj.frame(t);
-        let mask = &fused[&t].mask;
-        FrameScore {
-            psnr_in_warp: psnr_where(predicted, truth, mask, true, MASK_MIN_PIXELS),
-            psnr_out_warp: psnr_where(predicted, truth, mask, false, MASK_MIN_PIXELS),
-            ..FrameScore::of(t, predicted, truth, w, h)
-        }
-    };
+    let score = |t: usize, predicted: &[u8]| FrameScore::of_with_holes(t, predicted, traj.frame(t), w, h, &fused[&t].mask);
     let mut scores = Vec::with_capacity(rows.len());
     for (row_index, (row, plans)) in rows.iter().zip(&plans).enumerate() {
         let mut out = Vec::with_capacity(targets.len());
@@ -361,8 +384,8 @@ pub fn probe_trajectory(
                     progress(1);
                 }
             }
-            Predictor::CoVisible { .. } | Predictor::PlanWarps { .. } => {
-                return Err(ProbeError::Invalid(format!("{}: co-visible and plan-warp rows run in rollouts (`worldpack eval`) only", row.name)));
+            Predictor::CoVisible { .. } | Predictor::PlanWarps { .. } | Predictor::Reconstruct { .. } => {
+                return Err(ProbeError::Invalid(format!("{}: co-visible, plan-warp and reconstruction rows run in rollouts (`worldpack eval`) only", row.name)));
             }
         }
         scores.push(out);
@@ -401,8 +424,8 @@ pub fn latency_ms(traj: &Trajectory, row: &Row, latents: &[Vec<f32>], calls: usi
                         std::hint::black_box(img);
                     })?;
                 }
-                Predictor::CoVisible { .. } | Predictor::PlanWarps { .. } => {
-                    return Err(ProbeError::Invalid(format!("{}: co-visible and plan-warp rows run in rollouts only", row.name)));
+                Predictor::CoVisible { .. } | Predictor::PlanWarps { .. } | Predictor::Reconstruct { .. } => {
+                    return Err(ProbeError::Invalid(format!("{}: co-visible, plan-warp and reconstruction rows run in rollouts only", row.name)));
                 }
                 reference => {
                     std::hint::black_box(reference_image(traj, reference, &plan, t));

@@ -68,6 +68,8 @@ struct Run<'a> {
     end: usize,
     scores: Vec<FrameScore>,
     frames: Vec<Vec<u8>>,
+    /// [`landed_masks`] of `start..end`.
+    landed: Vec<Vec<bool>>,
 }
 
 /// How generated frames are scored, and whether they are kept (for FVD).
@@ -125,8 +127,20 @@ impl Capture<'_> {
     }
 }
 
+/// Where the fused warp of the best observed frames lands in each frame of
+/// `frames` (the probe's validity mask). It depends on the exploration alone,
+/// so every row is scored over the same holes and the holes measure pairs.
+fn landed_masks(traj: &Trajectory, frames: std::ops::Range<usize>) -> Result<Vec<Vec<bool>>, ProbeError> {
+    let frusta = traj.frusta()?;
+    let store = observed(&frusta, frames.start)?;
+    let policy = Policy::best_overlap_frames(FUSED_FRAMES);
+    Ok(frames.map(|t| fused_warp(traj, &store.select(&policy, &frusta[t], None).0, t).mask).collect())
+}
+
 impl Scorer<'_> {
-    fn score(&self, traj: &Trajectory, t: usize, predicted: &[u8]) -> Result<FrameScore, ProbeError> {
+    /// Scores frame `t` of `traj`; `landed` is its [`landed_masks`] entry,
+    /// for the PSNR and sharpness in and out of the warp.
+    fn score(&self, traj: &Trajectory, t: usize, predicted: &[u8], landed: &[bool]) -> Result<FrameScore, ProbeError> {
         let (w, h) = (traj.intrinsics.width as usize, traj.intrinsics.height as usize);
         let truth = traj.frame(t);
         let feature = |e: FeatureError| ProbeError::Invalid(e.to_string());
@@ -138,7 +152,7 @@ impl Scorer<'_> {
             Some(n) => Some(n.distances(&[predicted], &[truth], w, h).map_err(feature)?[0]),
             None => None,
         };
-        Ok(FrameScore { lpips, dreamsim, ..FrameScore::of(t, predicted, truth, w, h) })
+        Ok(FrameScore { lpips, dreamsim, ..FrameScore::of_with_holes(t, predicted, truth, w, h, landed) })
     }
 }
 
@@ -191,6 +205,16 @@ pub fn rollout_as(
             let (scores, frames) = trajs.iter().map(|t| reference(t, &row.predictor, max_frames, scorer, progress)).collect::<Result<Vec<_>, _>>()?.into_iter().unzip();
             Ok(RowOutput { scores, frames })
         }
+        Predictor::Reconstruct { model } => {
+            let (scores, frames) = trajs
+                .iter()
+                .zip(observed_latents)
+                .map(|(t, latents)| reconstruct(t, model, latents, max_frames, batch, scorer, progress))
+                .collect::<Result<Vec<_>, _>>()?
+                .into_iter()
+                .unzip();
+            Ok(RowOutput { scores, frames })
+        }
         Predictor::CoVisible { model, policy, sampler, .. }
         | Predictor::Model { model, policy, sampler }
         | Predictor::Composite { model, policy, sampler }
@@ -232,6 +256,7 @@ pub fn rollout_as(
                         end: range.end,
                         scores: Vec::with_capacity(range.len()),
                         frames: Vec::new(),
+                        landed: landed_masks(traj, range)?,
                     })
                 })
                 .collect::<Result<Vec<_>, ProbeError>>()?;
@@ -310,7 +335,7 @@ pub fn rollout_as(
                     for (&i, p) in chunk.iter().zip(prediction.frames) {
                         let r = &mut runs[i];
                         let t = r.next;
-                        r.scores.push(scorer.score(r.traj, t, &p.rgb)?);
+                        r.scores.push(scorer.score(r.traj, t, &p.rgb, &r.landed[t - r.start])?);
                         if scorer.keep_frames {
                             r.frames.push(p.rgb);
                         }
@@ -342,16 +367,58 @@ fn reference(
     let frusta = traj.frusta()?;
     let store = observed(&frusta, range.start)?;
     let policy = how.policy();
+    let landed = landed_masks(traj, range.clone())?;
     let mut out = Vec::with_capacity(range.len());
     let mut frames = Vec::new();
-    for t in range {
+    for (t, landed) in range.zip(&landed) {
         let (plan, _) = store.select(&policy, &frusta[t], None);
         let img = reference_image(traj, how, &plan, t);
-        out.push(scorer.score(traj, t, &img)?);
+        out.push(scorer.score(traj, t, &img, landed)?);
         if scorer.keep_frames {
             frames.push(img);
         }
         progress(1);
+    }
+    Ok((out, frames))
+}
+
+/// The return leg's true frames through `model`'s autoencoder: its
+/// `latents` (the truth encoded, one per frame) decoded, `batch` at a time.
+fn reconstruct(
+    traj: &Trajectory,
+    model: &Model,
+    latents: &[Vec<f32>],
+    max_frames: Option<usize>,
+    batch: usize,
+    scorer: &Scorer,
+    progress: &dyn Fn(usize),
+) -> Result<(Vec<FrameScore>, Vec<Vec<u8>>), ProbeError> {
+    let image = &model.manifest().image;
+    if (image.width, image.height) != (traj.intrinsics.width as usize, traj.intrinsics.height as usize) {
+        return Err(ProbeError::Invalid(format!(
+            "{}: the model makes {}x{} frames, the suite has {}x{}",
+            model.dir().display(),
+            image.width,
+            image.height,
+            traj.intrinsics.width,
+            traj.intrinsics.height
+        )));
+    }
+    let spec = &model.manifest().autoencoder.latent;
+    let range = rollout_frames(traj, max_frames);
+    let landed = landed_masks(traj, range.clone())?;
+    let (mut out, mut frames) = (Vec::with_capacity(range.len()), Vec::new());
+    for chunk in range.clone().collect::<Vec<_>>().chunks(batch.max(1)) {
+        let shape = vec![chunk.len(), spec.channels, spec.height, spec.width];
+        let decoded = model.decode(&model::Tensor::new(shape, chunk.iter().flat_map(|&t| latents[t].iter().copied()).collect()))?;
+        for (j, &t) in chunk.iter().enumerate() {
+            let rgb = model::generate::tensor_to_frame(&decoded, j)?;
+            out.push(scorer.score(traj, t, &rgb, &landed[t - range.start])?);
+            if scorer.keep_frames {
+                frames.push(rgb);
+            }
+        }
+        progress(chunk.len());
     }
     Ok((out, frames))
 }

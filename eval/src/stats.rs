@@ -91,6 +91,12 @@ pub struct PooledRow {
     /// The mean sharpness ratio (prediction's gradient energy over the
     /// truth's) over the frames that have one; absent when none has.
     pub sharpness: Option<Interval>,
+    /// PSNR and sharpness over the fused warp's holes, where memory has no
+    /// pixels (frames with enough hole pixels; absent when none has), and the
+    /// PSNR there paired against the reference row.
+    pub holes_psnr: Option<Interval>,
+    pub holes_psnr_diff: Option<Interval>,
+    pub holes_sharpness: Option<Interval>,
 }
 
 /// Pooled PSNR and SSIM of each row (per trajectory, per frame; every row
@@ -101,6 +107,13 @@ pub fn pooled(rows: &[(&str, &[Vec<FrameScore>])], against: &str, reps: usize) -
     let clusters = |r: &[Vec<FrameScore>], m: fn(&FrameScore) -> f64| -> Vec<Vec<f64>> { r.iter().map(|t| t.iter().map(m).collect()).collect() };
     let paired = |r: &[Vec<FrameScore>], m: fn(&FrameScore) -> f64| -> Vec<Vec<f64>> {
         r.iter().zip(reference).map(|(a, b)| a.iter().zip(b).map(|(x, y)| m(x) - m(y)).collect()).collect()
+    };
+    let some = |r: &[Vec<FrameScore>], m: fn(&FrameScore) -> Option<f64>| -> Option<Interval> {
+        Some(cluster_bootstrap(&r.iter().map(|t| t.iter().filter_map(m).collect()).collect::<Vec<_>>(), reps, 7)).filter(|i| i.values > 0)
+    };
+    let paired_some = |r: &[Vec<FrameScore>], m: fn(&FrameScore) -> Option<f64>| -> Option<Interval> {
+        let c: Vec<Vec<f64>> = r.iter().zip(reference).map(|(a, b)| a.iter().zip(b).filter_map(|(x, y)| Some(m(x)? - m(y)?)).collect()).collect();
+        Some(cluster_bootstrap(&c, reps, 7)).filter(|i| i.values > 0)
     };
     let trajectory_mean = |c: &[Vec<f64>]| mean_std(&c.iter().filter(|t| !t.is_empty()).map(|t| mean_std(t).0).collect::<Vec<_>>()).0;
     let psnr = |f: &FrameScore| f.psnr;
@@ -118,8 +131,10 @@ pub fn pooled(rows: &[(&str, &[Vec<FrameScore>])], against: &str, reps: usize) -
                     ssim_trajectory_weighted: trajectory_mean(&q),
                     psnr_diff: (!own).then(|| cluster_bootstrap(&paired(r, psnr), reps, 7)),
                     ssim_diff: (!own).then(|| cluster_bootstrap(&paired(r, ssim), reps, 7)),
-                    sharpness: Some(cluster_bootstrap(&r.iter().map(|t| t.iter().filter_map(|f| f.sharpness).collect()).collect::<Vec<_>>(), reps, 7))
-                        .filter(|i| i.values > 0),
+                    sharpness: some(r, |f| f.sharpness),
+                    holes_psnr: some(r, |f| f.psnr_out_warp),
+                    holes_psnr_diff: if own { None } else { paired_some(r, |f| f.psnr_out_warp) },
+                    holes_sharpness: some(r, |f| f.sharpness_out_warp),
                 }
             })
             .collect(),
@@ -178,7 +193,7 @@ mod tests {
 
     #[test]
     fn pooled_rows_pair_frames_and_weigh_trajectories() {
-        let score = |t: usize, psnr: f64| FrameScore { t, psnr, ssim: psnr / 100.0, lpips: None, dreamsim: None, sharpness: None, psnr_in_warp: None, psnr_out_warp: None };
+        let score = |t: usize, psnr: f64| FrameScore { t, psnr, ssim: psnr / 100.0, lpips: None, dreamsim: None, sharpness: None, psnr_in_warp: None, psnr_out_warp: None, sharpness_out_warp: None };
         // Two trajectories, of 3 frames and 1 frame; the second row is 1 dB better on every frame.
         let a = vec![vec![score(0, 10.0), score(1, 10.0), score(2, 10.0)], vec![score(0, 20.0)]];
         let b: Vec<Vec<FrameScore>> = a.iter().map(|t| t.iter().map(|f| score(f.t, f.psnr + 1.0)).collect()).collect();
@@ -193,5 +208,24 @@ mod tests {
         let sharp: Vec<Vec<FrameScore>> = a.iter().map(|t| t.iter().map(|f| FrameScore { sharpness: Some(0.5), ..*f }).collect()).collect();
         let s = pooled(&[("a", &sharp)], "a", 10).unwrap()[0].sharpness.unwrap();
         assert_eq!((s.mean, s.values), (0.5, 4));
+    }
+
+    #[test]
+    fn the_holes_measure_pairs_only_frames_with_holes_in_both_rows() {
+        let f = |t: usize, holes: Option<f64>| FrameScore {
+            t, psnr: 20.0, ssim: 0.5, lpips: None, dreamsim: None, sharpness: Some(1.0), psnr_in_warp: None, psnr_out_warp: holes,
+            sharpness_out_warp: holes.map(|p| p / 40.0),
+        };
+        // Frame 1 has no holes; the second row is 2 dB better in the holes of frames 0 and 2.
+        let a = vec![vec![f(0, Some(10.0)), f(1, None), f(2, Some(14.0))]];
+        let b = vec![vec![f(0, Some(12.0)), f(1, None), f(2, Some(16.0))]];
+        let rows = pooled(&[("a", &a), ("b", &b)], "a", 50).unwrap();
+        let (psnr, diff, sharp) = (rows[1].holes_psnr.unwrap(), rows[1].holes_psnr_diff.unwrap(), rows[0].holes_sharpness.unwrap());
+        assert_eq!((psnr.mean, psnr.values), (14.0, 2));
+        assert_eq!((diff.mean, diff.values), (2.0, 2));
+        assert!((sharp.mean - 0.3).abs() < 1e-12 && sharp.values == 2, "{sharp:?}");
+        assert!(rows[0].holes_psnr_diff.is_none(), "no difference against itself");
+        let none = vec![vec![f(0, None)]];
+        assert!(pooled(&[("a", &none)], "a", 10).unwrap()[0].holes_psnr.is_none(), "no frame with holes: no figure");
     }
 }

@@ -58,11 +58,13 @@ pub enum Stratum {
     LongHorizon,
     /// At least half of the view was seen during exploration: where memory can bring the scene back.
     Revisit,
+    /// Less than half of the view was seen during exploration: where the model has to paint.
+    NewGround,
 }
 
 impl Stratum {
-    pub const ALL: [Stratum; 6] =
-        [Stratum::All, Stratum::MemoryDependent, Stratum::Occluded, Stratum::OppositeRevisit, Stratum::LongHorizon, Stratum::Revisit];
+    pub const ALL: [Stratum; 7] =
+        [Stratum::All, Stratum::MemoryDependent, Stratum::Occluded, Stratum::OppositeRevisit, Stratum::LongHorizon, Stratum::Revisit, Stratum::NewGround];
 
     pub fn name(self) -> &'static str {
         match self {
@@ -72,6 +74,7 @@ impl Stratum {
             Stratum::OppositeRevisit => "opposite_revisit",
             Stratum::LongHorizon => "long_horizon",
             Stratum::Revisit => "revisit",
+            Stratum::NewGround => "new_ground",
         }
     }
 
@@ -83,6 +86,7 @@ impl Stratum {
             Stratum::OppositeRevisit => "within 3 blocks of an explored pose, none facing within 90°",
             Stratum::LongHorizon => "memory-dependent, and the frame showing most of that memory is ≥ 100 frames old",
             Stratum::Revisit => "≥ 50% of the view was seen by an exploration frame",
+            Stratum::NewGround => "< 50% of the view was seen by an exploration frame",
         }
     }
 
@@ -93,7 +97,17 @@ impl Stratum {
             Stratum::Occluded => f.occluded.is_some_and(|o| o >= 0.3),
             Stratum::OppositeRevisit => f.revisit_angle_deg.is_some_and(|a| a > 90.0),
             Stratum::LongHorizon => f.memory_only >= 0.1 && f.memory_age.is_some_and(|a| a >= 100),
-            Stratum::Revisit => f.explored >= REVISIT_SHARE,
+            Stratum::Revisit | Stratum::NewGround => self.contains_explored(f.explored),
+        }
+    }
+
+    /// For the strata a frame's explored share alone decides (revisit and new
+    /// ground): whether a frame with that share belongs; false for the others.
+    pub fn contains_explored(self, explored: f64) -> bool {
+        match self {
+            Stratum::Revisit => explored >= REVISIT_SHARE,
+            Stratum::NewGround => explored < REVISIT_SHARE,
+            _ => false,
         }
     }
 }

@@ -58,7 +58,7 @@ mod tests {
     use super::*;
 
     fn leg(psnr: &[f64]) -> Vec<FrameScore> {
-        psnr.iter().enumerate().map(|(t, &p)| FrameScore { t, psnr: p, ssim: 0.0, lpips: None, dreamsim: None, sharpness: None, psnr_in_warp: None, psnr_out_warp: None }).collect()
+        psnr.iter().enumerate().map(|(t, &p)| FrameScore { t, psnr: p, ssim: 0.0, lpips: None, dreamsim: None, sharpness: None, psnr_in_warp: None, psnr_out_warp: None, sharpness_out_warp: None }).collect()
     }
 
     #[test]

@@ -892,7 +892,7 @@ mod tests {
                 warped_depth: Default::default(),
                 rows: rows
                     .iter()
-                    .map(|&p| [10, 20].iter().map(|&t| FrameScore { t, psnr: p + i as f64, ssim: 0.5, lpips: None, dreamsim: None, sharpness: None, psnr_in_warp: None, psnr_out_warp: None }).collect())
+                    .map(|&p| [10, 20].iter().map(|&t| FrameScore { t, psnr: p + i as f64, ssim: 0.5, lpips: None, dreamsim: None, sharpness: None, psnr_in_warp: None, psnr_out_warp: None, sharpness_out_warp: None }).collect())
                     .collect(),
             })
             .collect()

@@ -108,7 +108,7 @@ mod tests {
 
     #[test]
     fn cells_average_trajectories_and_curves_average_frames() {
-        let f = |t: usize, psnr: f64| FrameScore { t, psnr, ssim: 0.5, lpips: None, dreamsim: None, sharpness: None, psnr_in_warp: None, psnr_out_warp: None };
+        let f = |t: usize, psnr: f64| FrameScore { t, psnr, ssim: 0.5, lpips: None, dreamsim: None, sharpness: None, psnr_in_warp: None, psnr_out_warp: None, sharpness_out_warp: None };
         let labels = vec![("aba".to_string(), 5), ("aba".to_string(), 5), ("abca".to_string(), 15)];
         let frames = vec![vec![f(0, 10.0), f(1, 20.0)], vec![f(0, 30.0)], vec![f(0, 7.0)]];
         let s = summarise(&labels, &[("row", &frames)]);

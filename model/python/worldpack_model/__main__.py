@@ -1,5 +1,5 @@
 """`python -m worldpack_model <stage>`: train-ae, encode, train, variants, distill, export, paper-scale, recover,
-fusion-train, fusion-export, fusion-pair.
+fusion-train, fusion-export, fusion-pair, sharpen-decoder, swap-decoder.
 See docs/model.md for the whole recipe."""
 
 from __future__ import annotations
@@ -154,6 +154,27 @@ def main() -> None:
     p.add_argument("--hole-fill", type=int, default=0, help="an odd window K: in the warp's holes within K // 2 pixels of "
                    "where it landed, the kept frame's K x K mean becomes the warp's colours diffused into the hole (0: off)")
 
+    p = sub.add_parser("sharpen-decoder", help="fine-tune run/autoencoder.pt's decoder for sharp frames, the encoder "
+                       "(so the latent space) frozen (sharpen.py; resumes from run/decoder-sharp.pt)")
+    common(p)
+    p.add_argument("--val", type=Path, help="a held-out suite for the PSNR and sharpness logged every 500 steps")
+    p.add_argument("--steps", type=int, default=20000)
+    p.add_argument("--batch", type=int, default=16)
+    p.add_argument("--lr", type=float, default=1e-4)
+    p.add_argument("--edge-weight", type=float, default=1.0, help="weight of the gradient difference loss")
+    p.add_argument("--adversarial-weight", type=float, default=0.5,
+                   help="the PatchGAN term's weight on top of VQGAN's adaptive one (0: no discriminator)")
+    p.add_argument("--adversarial-start", type=int, default=500,
+                   help="the step from which the decoder feels the discriminator (it trains from step 0)")
+    p.add_argument("--ema", type=float, default=0.999)
+    p.add_argument("--minutes", type=float, help="stop (and checkpoint) after this much wall time")
+
+    p = sub.add_parser("swap-decoder", help="copy a model folder with a `sharpen-decoder` run's decoder in place of its own")
+    p.add_argument("--model", type=Path, required=True, help="the model folder to copy (its encoder must be the run's)")
+    p.add_argument("--run", type=Path, required=True, help="the sharpen-decoder run folder")
+    p.add_argument("--out", type=Path, required=True, help="the new model folder (may be --model itself)")
+    p.add_argument("--half", action="store_true", help="round the decoder to float16 and store it so")
+
     a = ap.parse_args()
     import torch
 
@@ -182,6 +203,15 @@ def main() -> None:
         from . import fusion
 
         fusion.pair(a.kept, a.shown, a.out, a.data, a.hole_fill)
+    elif a.stage == "sharpen-decoder":
+        from . import sharpen
+
+        sharpen.sharpen_decoder(a.data, a.val, a.run, a.steps, a.batch, a.lr, a.edge_weight, a.adversarial_weight,
+                                a.adversarial_start, a.ema, a.device, a.minutes)
+    elif a.stage == "swap-decoder":
+        from . import sharpen
+
+        sharpen.swap_decoder(a.model, a.run, a.out, a.half)
     elif a.stage == "train-ae":
         train.train_autoencoder(a.data, a.run, a.steps, a.batch, a.lr, a.device, a.minutes)
     elif a.stage == "encode":

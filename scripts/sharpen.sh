@@ -1,0 +1,89 @@
+#!/usr/bin/env bash
+# Where the blur comes from, and the sharper decoder (docs/model.md#where-the-blur-comes-from).
+# Each stage reuses what is done; run the training in the background on one thread (THREADS)
+# while you work on the other core.
+#   ./scripts/sharpen.sh data                  # data/train120, data/val, data/loopnav-test; data/doom-{train100,val,test}
+#   ./scripts/sharpen.sh breakdown voxel|doom  # `worldpack eval` of every stage on the test suite (SUITE to change it)
+#   ./scripts/sharpen.sh train voxel|doom      # the decoder fine-tune, encoder frozen (MINUTES, STEPS)
+#   ./scripts/sharpen.sh swap voxel|doom       # the served model with that decoder: runs/sharp/<world>/model
+#   ./scripts/sharpen.sh eval voxel|doom       # it against the served model, paired (SUITE to change it)
+set -euo pipefail
+cd "$(dirname "$0")/.."
+threads="${THREADS:-1}"
+bin=target/release/worldpack
+doom() { (cd doom && PYTHONPATH=. ../.venv-train/bin/python -m worldpack_doom "$@"); }
+minutes=(${MINUTES:+--minutes "$MINUTES"})
+
+world="${2:-}"
+case "$world" in
+  voxel) served=fixtures/variants/worldpack_geometry_fused_1step; source_ae=fixtures/variants/baseline
+         train=data/train120; val=data/val; suite="${SUITE:-data/loopnav-test}" ;;
+  doom)  served=fixtures/doom/geometry_fused; source_ae=fixtures/doom/baseline
+         train=data/doom-train100; val=data/doom-val; suite="${SUITE:-data/doom-test}" ;;
+  "") [ "${1:-}" = data ] || { echo "usage: $0 data | breakdown|train|swap|eval voxel|doom" >&2; exit 2; } ;;
+  *) echo "world: voxel or doom, not $world" >&2; exit 2 ;;
+esac
+run="runs/sharp/$world"
+out="runs/sharp/eval-$world-$(basename "${suite:-none}")"
+
+case "${1:-}" in
+  data)
+    [ -x "$bin" ] || cargo build --release --bin worldpack
+    suite_of() { [ -f "$1/index.json" ] || { "$bin" sim loopnav --per-cell "$3" --seed "$2" --out "$1" && "$bin" plan --data "$1"; }; }
+    [ -f data/train120/index.json ] || "$bin" sim dataset --trajectories 120 --out data/train120
+    suite_of data/val 5 2
+    suite_of data/loopnav-test 6 6
+    .venv-train/bin/python -m pip install --disable-pip-version-check -q -r doom/requirements.txt
+    [ -f data/doom-test/index.json ] || doom suite --split test --count 48 --seed 2 --workers 2 --out ../data/doom-test
+    [ -f data/doom-val/index.json ] || doom suite --split train --count 16 --seed 3 --workers 2 --out ../data/doom-val
+    [ -f data/doom-train100/index.json ] || doom suite --split train --count 100 --seed 1 --workers 2 --out ../data/doom-train100
+    [ -f data/doom-test/plans.json ] || "$bin" plan --data data/doom-test ;;
+  breakdown)
+    # Every stage between the truth and the frame shown, co-visible as served: the autoencoder's
+    # own reconstruction, the denoiser's decoded sample, then each head.
+    if [ "$world" = voxel ]; then
+      # The 1-step student without a head, and with the 10-step model's (MSE) head.
+      .venv-train/bin/python - "$served" runs/sharp/student_raw runs/sharp/student_mse_head fixtures/variants/worldpack_geometry_fused <<'PY'
+import json, shutil, sys
+from pathlib import Path
+sys.path.insert(0, "model/python")
+from worldpack_model.export import keep_fusion_head
+served, raw, mse, teacher = map(Path, sys.argv[1:])
+for d in (raw, mse):
+    shutil.rmtree(d, ignore_errors=True)
+    shutil.copytree(served, d)
+    m = json.loads((d / "manifest.json").read_text())
+    m.pop("fusion"); m["reference"]["graphs"].pop("fusion", None); m["name"] = d.name
+    (d / "manifest.json").write_text(json.dumps(m, indent=2))
+    (d / "fusion.onnx").unlink(); shutil.rmtree(d / "reference" / "fusion")
+keep_fusion_head(teacher, mse)
+PY
+      "$bin" eval --suite "$suite" --policies baseline --no-references \
+        --extra ten_step=fixtures/variants/worldpack_geometry --extra student=runs/sharp/student_raw \
+        --extra ten_step_head=fixtures/variants/worldpack_geometry_fused --extra student_mse_head=runs/sharp/student_mse_head \
+        --extra served="$served" --reconstruct served \
+        --covisible ten_step --covisible student --covisible ten_step_head --covisible student_mse_head --covisible served \
+        --only served_autoencoder --only ten_step_covisible --only student_covisible --only ten_step_head_covisible \
+        --only student_mse_head_covisible --only served_covisible \
+        --against served_covisible --steps 10 --threads "$threads" --out "runs/sharp/breakdown-voxel-$(basename "$suite")"
+    else
+      "$bin" eval --suite "$suite" --policies baseline --no-references --models fixtures/doom \
+        --extra geometry=fixtures/doom/worldpack --extra geometry_fused="$served" --reconstruct geometry_fused \
+        --covisible geometry --covisible geometry_fused \
+        --only geometry_fused_autoencoder --only geometry_covisible --only geometry_fused_covisible \
+        --against geometry_fused_covisible --steps 10 --threads "$threads" --out "runs/sharp/breakdown-doom-$(basename "$suite")"
+    fi ;;
+  train)
+    [ -f "$run/autoencoder.pt" ] || ./scripts/model.sh recover --model "$source_ae" --run "$run"
+    ./scripts/model.sh sharpen-decoder --data "$train" --val "$val" --run "$run" --steps "${STEPS:-20000}" \
+        --threads "$threads" "${minutes[@]}" ;;
+  swap)
+    ./scripts/model.sh swap-decoder --model "$served" --run "$run" --out "$run/model" --half ;;
+  eval)
+    "$bin" eval --suite "$suite" --policies baseline --no-references \
+      --extra served="$served" --extra sharp="$run/model" --reconstruct served --reconstruct sharp \
+      --covisible served --covisible sharp \
+      --only served_covisible --only sharp_covisible --only served_autoencoder --only sharp_autoencoder \
+      --against served_covisible --steps 10 --threads "$threads" --out "$out" ;;
+  *) echo "usage: $0 data | breakdown|train|swap|eval voxel|doom" >&2; exit 2 ;;
+esac
