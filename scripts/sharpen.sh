@@ -16,9 +16,10 @@ minutes=(${MINUTES:+--minutes "$MINUTES"})
 
 world="${2:-}"
 case "$world" in
-  voxel) served=fixtures/variants/worldpack_geometry_fused_1step; source_ae=fixtures/variants/baseline
+  # `row`: how the breakdown names the served model's rows, so `eval` reuses them.
+  voxel) served=fixtures/variants/worldpack_geometry_fused_1step; source_ae=fixtures/variants/baseline; row=served
          train=data/train120; val=data/val; suite="${SUITE:-data/loopnav-test}" ;;
-  doom)  served=fixtures/doom/geometry_fused; source_ae=fixtures/doom/baseline
+  doom)  served=fixtures/doom/geometry_fused; source_ae=fixtures/doom/baseline; row=geometry_fused
          train=data/doom-train100; val=data/doom-val; suite="${SUITE:-data/doom-test}" ;;
   "") [ "${1:-}" = data ] || { echo "usage: $0 data | breakdown|train|swap|eval voxel|doom" >&2; exit 2; } ;;
   *) echo "world: voxel or doom, not $world" >&2; exit 2 ;;
@@ -80,10 +81,17 @@ PY
   swap)
     ./scripts/model.sh swap-decoder --model "$served" --run "$run" --out "$run/model" --half ;;
   eval)
+    # The breakdown's rows of the served model are the same computation: reused, not rerun.
+    mkdir -p "$out/rows"
+    for r in "${row}_covisible" "${row}_autoencoder"; do
+      f="runs/sharp/breakdown-$world-$(basename "$suite")/rows/$r.json"
+      [ -f "$out/rows/$r.json" ] || [ ! -f "$f" ] || cp "$f" "$out/rows/"
+    done
     "$bin" eval --suite "$suite" --policies baseline --no-references \
-      --extra served="$served" --extra sharp="$run/model" --reconstruct served --reconstruct sharp \
-      --covisible served --covisible sharp \
-      --only served_covisible --only sharp_covisible --only served_autoencoder --only sharp_autoencoder \
-      --against served_covisible --steps 10 --threads "$threads" --out "$out" ;;
+      --extra "$row=$served" --extra sharp="$run/model" --reconstruct "$row" --reconstruct sharp \
+      --covisible "$row" --covisible sharp \
+      --only "${row}_covisible" --only sharp_covisible --only "${row}_autoencoder" --only sharp_autoencoder \
+      --against "${row}_covisible" --strip "sharp_covisible,${row}_covisible" --strip-frames 8 \
+      --steps 10 --threads "$threads" --out "$out" ;;
   *) echo "usage: $0 data | breakdown|train|swap|eval voxel|doom" >&2; exit 2 ;;
 esac

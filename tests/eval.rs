@@ -47,14 +47,14 @@ fn reduced_rollout_suite_runs_resumes_and_scores_every_frame() {
     let suite = suite("rollout");
     let out = temp("out");
     let args = ["eval", "--suite", suite.to_str().unwrap(), "--out", out.to_str().unwrap(), "--max-frames", "5", "--steps", "2", "--threads", "1",
-        "--strip", "worldpack,copy", "--strip-frames", "3"];
+        "--strip", "worldpack,copy", "--strip-frames", "3", "--reconstruct", "worldpack"];
     ok(&args);
     let first = json(&out.join("results.json"));
     strip_shows_the_scored_frames(&first, &out.join("strip.png"));
     let rows: Vec<&str> = first["rows"].as_array().unwrap().iter().map(|r| r["name"].as_str().unwrap()).collect();
     assert_eq!(
         rows,
-        ["baseline", "nearest_frame_packing", "memory_retrieval", "worldpack", "worldmem_greedy", "worldpack_keep_last", "copy", "reproject", "reproject_fused", "composite"]
+        ["baseline", "nearest_frame_packing", "memory_retrieval", "worldpack", "worldmem_greedy", "worldpack_keep_last", "worldpack_autoencoder", "copy", "reproject", "reproject_fused", "composite"]
     );
     let trajectories = first["trajectories"].as_array().unwrap();
     assert_eq!(trajectories.len(), 2);
@@ -92,6 +92,14 @@ fn reduced_rollout_suite_runs_resumes_and_scores_every_frame() {
     for r in revisit["pooled"].as_array().unwrap() {
         assert_eq!(r["psnr"]["values"].as_u64().unwrap(), frames, "{r}");
     }
+    // The autoencoder row is the truth through the model's autoencoder: closer to the truth
+    // than any frame the model generates, but not the truth itself.
+    let psnr_of = |row: &str| pooled.iter().find(|r| r["row"] == row).unwrap()["psnr"]["mean"].as_f64().unwrap();
+    let ceiling = psnr_of("worldpack_autoencoder");
+    assert!(ceiling < 60.0, "the reconstruction is not the truth: {ceiling}");
+    for row in ["baseline", "worldpack", "worldpack_keep_last"] {
+        assert!(ceiling > psnr_of(row) + 3.0, "{row}: {} against the autoencoder's {ceiling}", psnr_of(row));
+    }
     // New ground is the rest of the return leg.
     let new_ground = &first["strata"][1];
     assert_eq!(new_ground["name"], "new_ground");
@@ -109,7 +117,7 @@ fn reduced_rollout_suite_runs_resumes_and_scores_every_frame() {
 
     // A second run reuses every row and reproduces the results.
     let log = ok(&args);
-    assert_eq!(log.matches("reusing").count(), 10, "{log}");
+    assert_eq!(log.matches("reusing").count(), 11, "{log}");
     let second = json(&out.join("results.json"));
     assert_eq!(first["cells"], second["cells"]);
     // Other settings are not confused with saved rows.
