@@ -133,7 +133,7 @@ enum Command {
     Study(study::Options),
     /// LoopNav-style evaluation: observe each trajectory's exploration, roll out its return leg
     /// autoregressively under each policy with its own weights, and score PSNR and SSIM per frame.
-    Eval(eval::Options),
+    Eval(Box<eval::Options>),
     /// Training examples for a geometry model's fusion head: its own predictions, the fused
     /// reference of its warp sources, where the warp landed and the truth, on a suite's return legs.
     FusionData(fusion::Options),

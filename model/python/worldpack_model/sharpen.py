@@ -36,7 +36,7 @@ from tqdm import tqdm
 from . import data as wdata
 from .autoencoder import psnr
 from .losses import gradient_difference
-from .train import load_autoencoder, log, pick_device, save
+from .train import load_autoencoder, log, optimise, pick_device, save
 
 CHECKPOINT = "decoder-sharp.pt"
 # The decoder sees its latent with this much noise (relative to the latents'
@@ -46,7 +46,8 @@ LATENT_NOISE = 0.05
 
 class PatchDiscriminator(nn.Module):
     """pix2pix's PatchGAN (Isola et al. 2017) as VQGAN uses it, sized for 64x64
-    frames: three stride-2/1 convolutions, one logit per ~22-pixel patch."""
+    frames: four 4x4 convolutions (two of stride 2), one logit per 34-pixel
+    patch (14x14 of them)."""
 
     def __init__(self, width: int = 32):
         super().__init__()
@@ -158,13 +159,7 @@ def sharpen_decoder(data: Path, val: Path | None, run: Path, steps: int, batch: 
             disc.train()
             weight = adversarial_weight * adaptive_weight(reconstruction, g_adv, last)
             loss = reconstruction + weight * g_adv
-        opt_g.zero_grad(set_to_none=True)
-        loss.backward()
-        torch.nn.utils.clip_grad_norm_(decoder.parameters(), 10.0)
-        opt_g.step()
-        with torch.no_grad():
-            for e, p in zip(ema.parameters(), decoder.parameters()):
-                e.lerp_(p, 1.0 - ema_decay)
+        optimise(decoder, ema, opt_g, loss, ema_decay)
         d_loss = torch.tensor(0.0)
         if adversarial_weight > 0:
             # The hinge loss on real frames and the decoder's (detached) output.
@@ -228,5 +223,8 @@ def swap_decoder(model_dir: Path, run: Path, out: Path, half: bool) -> None:
                   "VQGAN's adaptive weight; EMA weights",
         "steps": int(state["step"]), **state["settings"], "decoder_from": model_dir.name,
     }
+    if "metrics" in manifest:
+        # Its decoded-frame figures were measured with the decoder this one replaces.
+        manifest["metrics"]["decoder"] = f"measured with {model_dir.name}'s decoder, before the swap"
     (out / "manifest.json").write_text(json.dumps(manifest, indent=2))
     print(f"wrote {out}: {model_dir.name} with the decoder of {run} (step {state['step']})")
