@@ -4,7 +4,8 @@
 # while you work on the other core.
 #   ./scripts/sharpen.sh data                  # data/train120, data/val, data/loopnav-test; data/doom-{train100,val,test}
 #   ./scripts/sharpen.sh breakdown voxel|doom  # `worldpack eval` of every stage on the test suite (SUITE to change it)
-#   ./scripts/sharpen.sh train voxel|doom      # the decoder fine-tune, encoder frozen (MINUTES, STEPS)
+#   ./scripts/sharpen.sh train voxel|doom      # the decoder fine-tune, encoder frozen (MINUTES, STEPS; DECODER_FROM:
+#                                              # a model folder whose decoder a new run starts from)
 #   ./scripts/sharpen.sh swap voxel|doom       # the served model with that decoder: runs/sharp/<world>/model
 #   ./scripts/sharpen.sh eval voxel|doom       # it against the served model, paired (SUITE to change it)
 set -euo pipefail
@@ -77,7 +78,7 @@ PY
   train)
     [ -f "$run/autoencoder.pt" ] || ./scripts/model.sh recover --model "$source_ae" --run "$run"
     ./scripts/model.sh sharpen-decoder --data "$train" --val "$val" --run "$run" --steps "${STEPS:-20000}" \
-        --threads "$threads" "${minutes[@]}" ;;
+        --threads "$threads" "${minutes[@]}" ${DECODER_FROM:+--decoder-from "$DECODER_FROM"} ;;
   swap)
     ./scripts/model.sh swap-decoder --model "$served" --run "$run" --out "$run/model" --half ;;
   eval)

@@ -168,6 +168,8 @@ def main() -> None:
                    help="the step from which the decoder feels the discriminator (it trains from step 0)")
     p.add_argument("--ema", type=float, default=0.999)
     p.add_argument("--minutes", type=float, help="stop (and checkpoint) after this much wall time")
+    p.add_argument("--decoder-from", type=Path, help="a model folder whose exported decoder the fine-tune starts from "
+                   "(e.g. an earlier fine-tune's, committed); the discriminator starts afresh")
 
     p = sub.add_parser("swap-decoder", help="copy a model folder with a `sharpen-decoder` run's decoder in place of its own")
     p.add_argument("--model", type=Path, required=True, help="the model folder to copy (its encoder must be the run's)")
@@ -207,7 +209,7 @@ def main() -> None:
         from . import sharpen
 
         sharpen.sharpen_decoder(a.data, a.val, a.run, a.steps, a.batch, a.lr, a.edge_weight, a.adversarial_weight,
-                                a.adversarial_start, a.ema, a.device, a.minutes)
+                                a.adversarial_start, a.ema, a.device, a.minutes, a.decoder_from)
     elif a.stage == "swap-decoder":
         from . import sharpen
 

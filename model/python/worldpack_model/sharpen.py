@@ -102,11 +102,29 @@ def score(encoder: nn.Module, decoder: nn.Module, images: torch.Tensor) -> tuple
     return psnr(y, images), sharpness_ratio(y, images)
 
 
+def decoder_from(model_dir: Path, decoder: nn.Module) -> None:
+    """Loads a model folder's exported decoder into `decoder` (a committed
+    fine-tune continues from its graph), checked against the folder's reference."""
+    from .recover import Graph, load_state
+
+    manifest = json.loads((model_dir / "manifest.json").read_text())
+    load_state(decoder, [Graph(model_dir / manifest["autoencoder"]["decoder"]["file"])], "")
+    ref = model_dir / "reference" / "decoder"
+    with torch.no_grad():
+        got = decoder(torch.from_numpy(np.load(ref / "latent.npy"))).numpy()
+    worst = float(np.abs(got - np.load(ref / "image.npy")).max())
+    if worst > 1e-3:
+        raise SystemExit(f"--decoder-from: the rebuilt decoder differs from {ref} by {worst:.2e}")
+
+
 def sharpen_decoder(data: Path, val: Path | None, run: Path, steps: int, batch: int, lr: float, edge_weight: float,
                     adversarial_weight: float, adversarial_start: int, ema_decay: float, device: str,
-                    minutes: float | None) -> None:
+                    minutes: float | None, start_from: Path | None = None) -> None:
     dev = pick_device(device)
     ae = load_autoencoder(run, dev)
+    if start_from is not None and not (run / CHECKPOINT).exists():
+        decoder_from(start_from, ae.decoder)
+        print(f"the decoder starts from {start_from}'s")
     encoder = ae.encoder.eval().requires_grad_(False)
     decoder = ae.decoder.train()
     ema = copy.deepcopy(decoder).eval().requires_grad_(False)
