@@ -96,9 +96,10 @@ def held_out(data: Path, frames: int = 256) -> torch.Tensor:
 @torch.no_grad()
 def score(encoder: nn.Module, decoder: nn.Module, images: torch.Tensor) -> tuple[float, float]:
     """PSNR and sharpness ratio of decode(encode(x)) over `images`."""
+    was_training = decoder.training
     decoder.eval()
     y = torch.cat([decoder(encoder(c)) for c in images.split(64)])
-    decoder.train()
+    decoder.train(was_training)
     return psnr(y, images), sharpness_ratio(y, images)
 
 
