@@ -218,7 +218,7 @@ pub fn evaluate(s: &Settings, progress: &dyn Fn(Progress)) -> Result<Evaluation,
     let lpips = s.lpips.as_deref().map(|p| Lpips::open(p, s.runtime).map_err(feature("--lpips"))).transpose()?;
     let dreamsim = s.dreamsim.as_deref().map(|p| Embedding::open(p, s.runtime).map_err(feature("--dreamsim"))).transpose()?;
     let fvd_net = s.fvd.as_deref().map(|p| VideoFeatures::open(p, s.runtime).map_err(feature("--fvd"))).transpose()?;
-    let scorer = Scorer { lpips: lpips.as_ref(), dreamsim: dreamsim.as_ref(), keep_frames: fvd_net.is_some(), capture: None };
+    let scorer = Scorer { lpips: lpips.as_ref(), dreamsim: dreamsim.as_ref(), keep_frames: fvd_net.is_some(), capture: None, ..Scorer::default() };
     let networks = [&s.lpips, &s.dreamsim, &s.fvd].map(|p| p.as_ref().map(|p| p.display().to_string()));
     let mut extras = Vec::with_capacity(s.extra.len());
     for (name, dir) in &s.extra {

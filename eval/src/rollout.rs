@@ -69,7 +69,7 @@ struct Run<'a> {
     scores: Vec<FrameScore>,
     frames: Vec<Vec<u8>>,
     /// [`landed_masks`] of `start..end`.
-    landed: Vec<Vec<bool>>,
+    landed: LandedMasks,
 }
 
 /// How generated frames are scored, and whether they are kept (for FVD).
@@ -80,7 +80,13 @@ pub struct Scorer<'a> {
     pub keep_frames: bool,
     /// Fusion-head training examples taken on the way (`worldpack fusion-data --rollout-with`).
     pub capture: Option<&'a Capture<'a>>,
+    /// [`landed_masks`] by trajectory and frame range: the same for every row,
+    /// so made once for all the rows this scorer scores.
+    pub landed: RefCell<HashMap<(String, usize, usize), LandedMasks>>,
 }
+
+/// One trajectory's [`landed_masks`], shared by the rows that score it.
+pub type LandedMasks = std::rc::Rc<Vec<Vec<bool>>>;
 
 /// Fusion-head examples from a fused model's rollouts, as the head meets
 /// them in use: the frame it was given (the same request through `bare`, the
@@ -138,6 +144,17 @@ fn landed_masks(traj: &Trajectory, frames: std::ops::Range<usize>) -> Result<Vec
 }
 
 impl Scorer<'_> {
+    /// `traj`'s [`landed_masks`] over `frames`, made on first use.
+    fn landed(&self, traj: &Trajectory, frames: std::ops::Range<usize>) -> Result<LandedMasks, ProbeError> {
+        let key = (traj.entry.dir.clone(), frames.start, frames.end);
+        if let Some(masks) = self.landed.borrow().get(&key) {
+            return Ok(masks.clone());
+        }
+        let masks = std::rc::Rc::new(landed_masks(traj, frames)?);
+        self.landed.borrow_mut().insert(key, masks.clone());
+        Ok(masks)
+    }
+
     /// Scores frame `t` of `traj`; `landed` is its [`landed_masks`] entry,
     /// for the PSNR and sharpness in and out of the warp.
     fn score(&self, traj: &Trajectory, t: usize, predicted: &[u8], landed: &[bool]) -> Result<FrameScore, ProbeError> {
@@ -256,7 +273,7 @@ pub fn rollout_as(
                         end: range.end,
                         scores: Vec::with_capacity(range.len()),
                         frames: Vec::new(),
-                        landed: landed_masks(traj, range)?,
+                        landed: scorer.landed(traj, range)?,
                     })
                 })
                 .collect::<Result<Vec<_>, ProbeError>>()?;
@@ -367,10 +384,10 @@ fn reference(
     let frusta = traj.frusta()?;
     let store = observed(&frusta, range.start)?;
     let policy = how.policy();
-    let landed = landed_masks(traj, range.clone())?;
+    let landed = scorer.landed(traj, range.clone())?;
     let mut out = Vec::with_capacity(range.len());
     let mut frames = Vec::new();
-    for (t, landed) in range.zip(&landed) {
+    for (t, landed) in range.zip(landed.iter()) {
         let (plan, _) = store.select(&policy, &frusta[t], None);
         let img = reference_image(traj, how, &plan, t);
         out.push(scorer.score(traj, t, &img, landed)?);
@@ -406,7 +423,7 @@ fn reconstruct(
     }
     let spec = &model.manifest().autoencoder.latent;
     let range = rollout_frames(traj, max_frames);
-    let landed = landed_masks(traj, range.clone())?;
+    let landed = scorer.landed(traj, range.clone())?;
     let (mut out, mut frames) = (Vec::with_capacity(range.len()), Vec::new());
     for chunk in range.clone().collect::<Vec<_>>().chunks(batch.max(1)) {
         let shape = vec![chunk.len(), spec.channels, spec.height, spec.width];

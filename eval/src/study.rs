@@ -499,7 +499,7 @@ fn noisy_rollouts(
         let rows = build_rows(&sub, models, o.probe.method)?;
         let frames: usize = seen.iter().map(|t| crate::rollout::rollout_frames(t, Some(o.rollout_frames)).len()).sum();
         progress(Progress::Begin { what: &format!("rollouts: {}", c.name), total: frames * rows.len() });
-        let scorer = crate::rollout::Scorer { lpips: None, dreamsim: None, keep_frames: false, capture: None };
+        let scorer = crate::rollout::Scorer::default();
         let mut scores = Vec::new();
         for (row, spec) in rows.iter().zip(&sub.rows) {
             let observed: Vec<Vec<Vec<f32>>> = match &spec.what {
