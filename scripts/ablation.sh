@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # The rollout-stability ablation: short fine-tunes of the committed 4-frame
-# baseline (fixtures/variants/baseline, recovered into runs/base), one recipe
+# baseline (fixtures/variants/baseline_12k, recovered into runs/base), one recipe
 # change each, then each exported and rolled out on a validation suite of
 # held-out seeds (not the test suite). Resumable: rerun the same command and
 # every stage continues where it stopped.
@@ -28,7 +28,7 @@ declare -A recipe=(
 rows=("$@")
 if [ ${#rows[@]} -eq 0 ]; then rows=(context_noise rollout continued pose_noise); fi
 
-[ -f "$base/cdit-baseline.pt" ] || ./scripts/model.sh recover --model fixtures/variants/baseline --run "$base"
+[ -f "$base/cdit-baseline.pt" ] || ./scripts/model.sh recover --model fixtures/variants/baseline_12k --run "$base"
 [ -f "$val/index.json" ] || { "$bin" sim loopnav --per-cell 2 --seed 5 --out "$val" && "$bin" plan --data "$val"; }
 
 for name in "${rows[@]}"; do

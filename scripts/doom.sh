@@ -5,10 +5,10 @@
 # in the background on one thread (THREADS) while you work on the other core.
 #   ./scripts/doom.sh data                 # data/doom-{train,train-abca,val,test,test-abca}: 400 / 120 / 16 / 48 / 48 walks, checked and planned
 #   ./scripts/doom.sh autoencoder          # the voxel autoencoder fine-tuned on Doom frames, then the latent cache
-#   ./scripts/doom.sh baseline             # the 4-frame baseline: baseline_25k fine-tuned on Doom (STEPS, MINUTES)
-#   ./scripts/doom.sh worldpack            # WorldPack with the warp input: worldpack_25k fine-tuned on Doom (STEPS, MINUTES)
-# The voxel pair is in the paper's order (worldpack_25k is a fine-tune of
-# baseline_25k); on Doom each is fine-tuned for the same steps, so the two can
+#   ./scripts/doom.sh baseline             # the 4-frame baseline: the paper-order baseline (fixtures/variants/baseline) fine-tuned on Doom (STEPS, MINUTES)
+#   ./scripts/doom.sh worldpack            # WorldPack with the warp input: the paper-order WorldPack (fixtures/variants/worldpack) fine-tuned on Doom (STEPS, MINUTES)
+# The voxel pair is in the paper's order (that WorldPack is a fine-tune of
+# that baseline); on Doom each is fine-tuned for the same steps, so the two can
 # train at once, one core each.
 #   ./scripts/doom.sh fusion               # its fusion head on ABA and ABCA training walks: the geometry model
 #   ./scripts/doom.sh eval                 # the held-out maps: every row with paired intervals (SUITE: data/doom-test)
@@ -37,7 +37,7 @@ case "${1:-}" in
     [ -f data/doom-test/plans.json ] || "$bin" plan --data data/doom-test
     [ -f data/doom-test-abca/plans.json ] || "$bin" plan --data data/doom-test-abca ;;
   autoencoder)
-    [ -f "$run/init/cdit-baseline.pt" ] || ./scripts/model.sh recover --model fixtures/variants/baseline_25k --run "$run/init"
+    [ -f "$run/init/cdit-baseline.pt" ] || ./scripts/model.sh recover --model fixtures/variants/baseline --run "$run/init"
     mkdir -p "$run/base"
     [ -f "$run/base/config.json" ] || cp "$run/init/config.json" "$run/base/config.json"
     [ -f "$run/base/autoencoder.pt" ] || cp "$run/init/autoencoder.pt" "$run/base/autoencoder.pt"
@@ -51,7 +51,7 @@ case "${1:-}" in
   worldpack)
     w="$run/worldpack"
     mkdir -p "$w"
-    [ -f "$run/init-wp/cdit-worldpack.pt" ] || ./scripts/model.sh recover --model fixtures/variants/worldpack_25k --run "$run/init-wp"
+    [ -f "$run/init-wp/cdit-worldpack.pt" ] || ./scripts/model.sh recover --model fixtures/variants/worldpack --run "$run/init-wp"
     [ -e "$w/autoencoder.pt" ] || ln -s "$PWD/$run/base/autoencoder.pt" "$w/autoencoder.pt"
     [ -e "$w/latents" ] || ln -s "$PWD/$run/base/latents" "$w/latents"
     if [ ! -f "$w/config.json" ]; then

@@ -26,6 +26,12 @@ init_model=fixtures/variants/${policy}_recipe   # the recipe model this fine-tun
 init_run=runs/${policy}_recipe
 [ "$policy" = worldpack ] && init_run=runs/wp_recipe
 
+# A models folder whose `baseline` is the first-trained one (fixtures/variants/baseline_12k).
+first_baseline() {
+  mkdir -p runs/geo/first-baseline
+  [ -e runs/geo/first-baseline/baseline ] || ln -s "$PWD/fixtures/variants/baseline_12k" runs/geo/first-baseline/baseline
+}
+
 case "${1:-}" in
   train)
     mkdir -p "$run"
@@ -40,7 +46,9 @@ case "${1:-}" in
     ./scripts/model.sh export --run "$run" --policy "$policy" --layouts "$policy" --data data/val --out "$out" --half --threads "$threads" ;;
   eval)
     # The rows measured on 2026-11-23 are reused from runs/recipe/eval-test/rows when their models are unchanged.
-    "$bin" eval --suite data/loopnav-test --models fixtures/variants --policies baseline --out runs/recipe/eval-test \
+    # Their baseline row is the first-trained baseline these fine-tunes started from.
+    first_baseline
+    "$bin" eval --suite data/loopnav-test --models runs/geo/first-baseline --policies baseline --out runs/recipe/eval-test \
         --extra baseline_ctx_noise=fixtures/variants/baseline_ctx_noise --extra worldpack_recipe=$recipe \
         --extra nearest_frame_packing_recipe=fixtures/variants/nearest_frame_packing_recipe \
         --extra memory_retrieval_recipe=fixtures/variants/memory_retrieval_recipe --extra "$geo" \
@@ -51,9 +59,8 @@ case "${1:-}" in
         --strip worldpack_geometry,worldpack_recipe,baseline,reproject_fused --threads "${EVAL_THREADS:-2}" "${@:2}" ;;
   probe)
     # Only the rows the geometry questions need: the baseline (required), WorldPack with the recipe, the geometry model.
-    mkdir -p runs/geo/probe-models
-    [ -e runs/geo/probe-models/baseline ] || ln -s "$PWD/fixtures/variants/baseline" runs/geo/probe-models/baseline
-    "$bin" probe --suite "${SUITE:-data/loopnav-test}" --models runs/geo/probe-models --stride "${STRIDE:-12}" \
+    first_baseline
+    "$bin" probe --suite "${SUITE:-data/loopnav-test}" --models runs/geo/first-baseline --stride "${STRIDE:-12}" \
         --extra worldpack_recipe=$recipe --extra "$geo" --composite worldpack_geometry \
         --contrast "worldpack_geometry:reproject 3 best frames, fused" \
         --contrast "worldpack_geometry:fused warp, baseline in its holes" \
@@ -62,6 +69,6 @@ case "${1:-}" in
   walk)
     .venv/bin/python scripts/rest_walk.py --out docs/geometry/rest_walk --observe-outbound \
         --row worldpack_geometry="$out":worldpack --row worldpack_recipe=$recipe:worldpack \
-        --row baseline=fixtures/variants/baseline:baseline ;;
+        --row baseline=fixtures/variants/baseline_12k:baseline ;;
   *) echo "usage: $0 train | export | eval | probe | walk" >&2; exit 2 ;;
 esac

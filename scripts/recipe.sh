@@ -42,7 +42,7 @@ prepare() {
   fi
   suite data/val 5 2
   suite data/loopnav-test 6 6
-  [ -f "$base/cdit-baseline.pt" ] || ./scripts/model.sh recover --model fixtures/variants/baseline --run "$base"
+  [ -f "$base/cdit-baseline.pt" ] || ./scripts/model.sh recover --model fixtures/variants/baseline_12k --run "$base"
   ./scripts/model.sh encode --data "$data" --run "$base" --threads "$threads"
 }
 
@@ -78,7 +78,10 @@ case "${1:-}" in
   train) shift; for name in "$@"; do train "$name"; done ;;
   eval)
     suite="${SUITE:-data/val}"
-    args=(--suite "$suite" --models fixtures/variants --policies baseline --threads "${EVAL_THREADS:-2}" --out "$out/eval-$(basename "$suite")")
+    # The baseline row is the first-trained baseline the fine-tunes start from.
+    mkdir -p "$out/first-baseline"
+    [ -e "$out/first-baseline/baseline" ] || ln -s "$PWD/fixtures/variants/baseline_12k" "$out/first-baseline/baseline"
+    args=(--suite "$suite" --models "$out/first-baseline" --policies baseline --threads "${EVAL_THREADS:-2}" --out "$out/eval-$(basename "$suite")")
     for name in baseline_continued nearest_frame_packing memory_retrieval worldpack; do
       m="$out/$name/model/${policy[$name]}"
       [ -f "$m/manifest.json" ] && args+=(--extra "${name}_recipe=$m")
