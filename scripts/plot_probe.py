@@ -6,7 +6,7 @@
     # (here the baseline of runs/small with the fine-tunes of runs/geo)
     .venv/bin/python scripts/plot_probe.py loss runs/small/log.jsonl runs/geo/log.jsonl -o docs/probe/training_loss.png
     # return-leg PSNR difference to the baseline, with 95% intervals, from `worldpack probe --out`
-    .venv/bin/python scripts/plot_probe.py probe docs/probe/probe-session4.json -o docs/probe/probe-session4.png
+    .venv/bin/python scripts/plot_probe.py probe docs/probe/probe-first-variants.json -o docs/probe/probe-first-variants.png
 """
 
 import argparse

@@ -1,18 +1,22 @@
 #!/usr/bin/env bash
-# One command for docs/results.md: makes the evaluation suite when missing,
-# runs `worldpack eval` (resumable: rows already done with the same settings
-# are reused), then `worldpack study` (speed against accuracy, pose noise
-# with OpenCV visual odometry on a 224x224 render of the same suite, and the
-# failure strata; also resumable) and writes the report with its pictures.
-#   ./scripts/results.sh                      # the documented default run
-#   PER_CELL=1 MAX_FRAMES=40 ./scripts/results.sh --steps 4   # a quick look
-#   STUDY=0 ./scripts/results.sh              # rollouts only
+# One command for docs/results.md, the voxel world's results page: the paper's pair
+# (`--policies baseline,worldpack`, each run with its best committed weights) and the
+# served model (co-visible selection, as `./scripts/serve.sh` runs it) against the
+# copy and depth-warp references, on the 48-trajectory test suite. Resumable: rows
+# already done with the same settings are reused. STUDY=1 adds `worldpack study`
+# (speed against accuracy, pose noise with OpenCV visual odometry on a 224x224
+# render of the same suite, failure strata) over the four paper policies and the served model.
+#   ./scripts/results.sh                                  # the page as committed
+#   SUITE=data/loopnav-fresh53 ./scripts/results.sh       # another suite (made when missing, SEED and PER_CELL)
+#   STUDY=1 ./scripts/results.sh                          # with the study (slow)
 # Extra arguments go to `worldpack eval`.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-suite="${SUITE:-data/loopnav-eval}"
-per_cell="${PER_CELL:-2}"
-out="${OUT:-runs/eval}"
+suite="${SUITE:-data/loopnav-test}"
+seed="${SEED:-6}"
+per_cell="${PER_CELL:-6}"
+out="${OUT:-runs/results/$(basename "$suite")}"
+served="${SERVED:-fixtures/variants/worldpack_geometry_fused_1step}"
 if [ ! -x .venv/bin/python ]; then
   python3 -m venv .venv
   .venv/bin/python -m pip install --disable-pip-version-check -q -r tests/requirements.txt
@@ -20,21 +24,22 @@ fi
 cargo build --release --bin worldpack
 bin=target/release/worldpack
 if [ ! -f "$suite/index.json" ]; then
-  "$bin" sim loopnav --per-cell "$per_cell" --seed 2 --out "$suite"
+  "$bin" sim loopnav --per-cell "$per_cell" --seed "$seed" --out "$suite"
+  "$bin" plan --data "$suite"
 fi
-args=(--suite "$suite" --out "$out")
-if [ -n "${MAX_FRAMES:-}" ]; then args+=(--max-frames "$MAX_FRAMES"); fi
-"$bin" eval "${args[@]}" "$@"
+"$bin" eval --suite "$suite" --out "$out" --policies baseline,worldpack \
+  --extra served="$served" --covisible served --only baseline --only worldpack --only served_covisible \
+  --threads "${THREADS:-1}" "$@"
 study=()
-if [ "${STUDY:-1}" != 0 ]; then
+if [ "${STUDY:-0}" != 0 ]; then
   render="${suite}-224"
   if [ ! -f "$render/index.json" ]; then
-    "$bin" sim loopnav --per-cell "$per_cell" --seed 2 --size 224x224 --out "$render"
+    "$bin" sim loopnav --per-cell "$per_cell" --seed "$seed" --size 224x224 --out "$render"
   fi
   .venv/bin/python scripts/visual_odometry.py --render "$render" --suite "$suite"
-  "$bin" study --suite "$suite" --extra worldpack_tiny=fixtures/variants/worldpack_tiny --vo poses-vo.npy --out runs/study
+  "$bin" study --suite "$suite" --extra served="$served" --vo poses-vo.npy --out runs/study
   study=(--study runs/study/study.json)
 fi
-probe=()
-if [ -f docs/probe/probe.json ]; then probe=(--probe docs/probe/probe.json); fi
-.venv/bin/python scripts/report.py "$out/results.json" "${probe[@]}" "${study[@]}" --command "./scripts/results.sh $*" -o docs/results.md
+command="./scripts/results.sh $*"
+[ "$suite" = data/loopnav-test ] || command="SUITE=$suite $command"
+.venv/bin/python scripts/report.py "$out/results.json" "${study[@]}" --command "$command" -o docs/results.md
