@@ -7,7 +7,11 @@
 #   ./scripts/sharpen.sh train voxel|doom      # the decoder fine-tune, encoder frozen (MINUTES, STEPS; DECODER_FROM:
 #                                              # a model folder whose decoder a new run starts from)
 #   ./scripts/sharpen.sh swap voxel|doom       # the served model with that decoder: runs/sharp/<world>/model
-#   ./scripts/sharpen.sh eval voxel|doom       # it against the served model, paired (SUITE to change it)
+#   ./scripts/sharpen.sh head voxel            # a pix2pix head for the frame shown (conditional PatchGAN + MSE + edges),
+#                                              # trained on the sharp-decoder student's own frames: runs/sharp/voxel/head/model
+#                                              # (HEAD_STEPS, ADVERSARIAL, MINUTES; SHARP: the model whose decoder it sits on)
+#   ./scripts/sharpen.sh eval voxel|doom       # it against the served model, paired (SUITE to change it;
+#                                              # CANDIDATE: another model folder than runs/sharp/<world>/model)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 threads="${THREADS:-1}"
@@ -45,21 +49,10 @@ case "${1:-}" in
     # own reconstruction, the denoiser's decoded sample, then each head.
     if [ "$world" = voxel ]; then
       # The 1-step student without a head, and with the 10-step model's (MSE) head.
-      .venv-train/bin/python - "$served" runs/sharp/student_raw runs/sharp/student_mse_head fixtures/variants/worldpack_geometry_fused <<'PY'
-import json, shutil, sys
-from pathlib import Path
-sys.path.insert(0, "model/python")
-from worldpack_model.export import keep_fusion_head
-served, raw, mse, teacher = map(Path, sys.argv[1:])
-for d in (raw, mse):
-    shutil.rmtree(d, ignore_errors=True)
-    shutil.copytree(served, d)
-    m = json.loads((d / "manifest.json").read_text())
-    m.pop("fusion"); m["reference"]["graphs"].pop("fusion", None); m["name"] = d.name
-    (d / "manifest.json").write_text(json.dumps(m, indent=2))
-    (d / "fusion.onnx").unlink(); shutil.rmtree(d / "reference" / "fusion")
-keep_fusion_head(teacher, mse)
-PY
+      ./scripts/model.sh fusion-strip --model "$served" --out runs/sharp/student_raw
+      ./scripts/model.sh fusion-strip --model "$served" --out runs/sharp/student_mse_head
+      PYTHONPATH=model/python .venv-train/bin/python -c "from pathlib import Path; from worldpack_model.export import keep_fusion_head
+keep_fusion_head(Path('fixtures/variants/worldpack_geometry_fused'), Path('runs/sharp/student_mse_head'))"
       "$bin" eval --suite "$suite" --policies baseline --no-references \
         --extra ten_step=fixtures/variants/worldpack_geometry --extra student=runs/sharp/student_raw \
         --extra ten_step_head=fixtures/variants/worldpack_geometry_fused --extra student_mse_head=runs/sharp/student_mse_head \
@@ -79,6 +72,18 @@ PY
     [ -f "$run/autoencoder.pt" ] || ./scripts/model.sh recover --model "$source_ae" --run "$run"
     ./scripts/model.sh sharpen-decoder --data "$train" --val "$val" --run "$run" --steps "${STEPS:-20000}" \
         --threads "$threads" "${minutes[@]}" ${DECODER_FROM:+--decoder-from "$DECODER_FROM"} ;;
+  head)
+    [ "$world" = voxel ] || { echo "head: voxel only (Doom's served model has one head, not a pair to keep half of)" >&2; exit 2; }
+    sharp="${SHARP:-fixtures/variants/worldpack_geometry_fused_1step_sharp}"
+    [ -f "$run/head/bare/manifest.json" ] || ./scripts/model.sh fusion-strip --model "$sharp" --out "$run/head/bare"
+    [ -f "$run/head/data/truth.npy" ] || "$bin" fusion-data --suite "$train" --model "$run/head/bare" --steps 1 \
+        --threads "$threads" --out "$run/head/data"
+    ./scripts/model.sh fusion-train --data "$run/head/data" --run "$run/head" --steps "${HEAD_STEPS:-6000}" --lr 1e-3 \
+        --edge-weight 1 --adversarial-weight "${ADVERSARIAL:-0.5}" --threads "$threads" "${minutes[@]}"
+    ./scripts/model.sh fusion-export --run "$run/head" --model "$run/head/bare" --out "$run/head/shown" --data "$run/head/data"
+    # The frame kept stays the one SHARP keeps (its own head, holes filled from the warp).
+    ./scripts/model.sh fusion-pair --kept "$sharp" --shown "$run/head/shown" --out "$run/head/model" --hole-fill 7 \
+        --data "$run/head/data" ;;
   swap)
     ./scripts/model.sh swap-decoder --model "$served" --run "$run" --out "$run/model" --half ;;
   eval)
@@ -89,7 +94,7 @@ PY
       [ -f "$out/rows/$r.json" ] || [ ! -f "$f" ] || cp "$f" "$out/rows/"
     done
     "$bin" eval --suite "$suite" --policies baseline --no-references \
-      --extra "$row=$served" --extra sharp="$run/model" --reconstruct "$row" --reconstruct sharp \
+      --extra "$row=$served" --extra sharp="${CANDIDATE:-$run/model}" --reconstruct "$row" --reconstruct sharp \
       --covisible "$row" --covisible sharp \
       --only "${row}_covisible" --only sharp_covisible --only "${row}_autoencoder" --only sharp_autoencoder \
       --against "${row}_covisible" --strip "sharp_covisible,${row}_covisible" --strip-frames 8 \

@@ -136,6 +136,10 @@ def main() -> None:
                    help="weight of the gradient difference loss against the truth (Mathieu et al. 2016); 0: MSE only")
     p.add_argument("--edge-landed", type=float, default=1.0,
                    help="that loss's per-pixel weight where the warp landed (1 in its holes; 0: holes only)")
+    p.add_argument("--adversarial-weight", type=float, default=0.0,
+                   help="a conditional PatchGAN's term on top of VQGAN's adaptive weight (pix2pix; 0: no discriminator)")
+    p.add_argument("--adversarial-start", type=int, default=500,
+                   help="the step from which the head feels the discriminator (it trains from step 0)")
     p.add_argument("--minutes", type=float, help="stop (and checkpoint) after this much wall time")
     p.add_argument("--threads", type=int, default=0, help="torch CPU threads (0: torch's default)")
 
@@ -144,6 +148,11 @@ def main() -> None:
     p.add_argument("--model", type=Path, required=True, help="the geometry model folder the head was trained on")
     p.add_argument("--out", type=Path, required=True, help="the new model folder (its name becomes the model's)")
     p.add_argument("--data", type=Path, help="a fusion-data folder whose last examples become the references")
+
+    p = sub.add_parser("fusion-strip", help="copy a fused model folder without its fusion head (the bare model whose "
+                       "predictions `worldpack fusion-data` makes a head's examples from)")
+    p.add_argument("--model", type=Path, required=True, help="the fused model folder to copy")
+    p.add_argument("--out", type=Path, required=True, help="the new model folder (its name becomes the model's)")
 
     p = sub.add_parser("fusion-pair", help="copy a fused model folder with a head pair: another model's head makes the "
                        "frame shown, its own the frame the memory keeps (fusion.py HeadPair)")
@@ -196,11 +205,16 @@ def main() -> None:
         from . import fusion
 
         fusion.train(a.data, a.run, a.steps, a.batch, a.lr, a.minutes, a.width, edge_weight=a.edge_weight,
-                     edge_landed=a.edge_landed)
+                     edge_landed=a.edge_landed, adversarial_weight=a.adversarial_weight,
+                     adversarial_start=a.adversarial_start)
     elif a.stage == "fusion-export":
         from . import fusion
 
         fusion.export(a.run, a.model, a.out, a.data)
+    elif a.stage == "fusion-strip":
+        from . import fusion
+
+        fusion.without_head(a.model, a.out)
     elif a.stage == "fusion-pair":
         from . import fusion
 

@@ -36,7 +36,7 @@ import torch
 from torch import nn
 import torch.nn.functional as F
 
-from .losses import gradient_difference
+from .losses import PatchDiscriminator, adaptive_weight, gradient_difference, hinge_discriminator, sharpness_ratio
 from .train import resume
 
 INPUTS = ("predicted", "reference", "landed")  # the order model/src/manifest.rs expects
@@ -101,10 +101,11 @@ def fill_holes_from_warp(frame, reference, landed, k: int):
     return frame + (diffused - pool(frame)) * (1 - landed) * reach
 
 
-def head_of(model: Path) -> tuple[FusionHead, dict]:
+def head_of(model: Path, part: str = "kept") -> tuple[FusionHead, dict]:
     """The fusion head of an exported model folder, rebuilt from its
     fusion.onnx (the initializers keep the PyTorch names), and its manifest
-    entry. A head pair is refused: pair single heads."""
+    entry as a single head's. Of a head pair, the head `part` ("shown" or
+    "kept"), with the model and training the pair records for it."""
     import onnx
     from onnx import numpy_helper
 
@@ -112,16 +113,27 @@ def head_of(model: Path) -> tuple[FusionHead, dict]:
     spec = manifest.get("fusion")
     if spec is None:
         raise SystemExit(f"{model}: has no fusion head")
-    if "pair" in spec:
-        raise SystemExit(f"{model}: its head is a pair already; give the models its heads came from")
+    prefix = f"{part}." if "pair" in spec else ""
     proto = onnx.load(model / spec["file"])
-    weights = {i.name: torch.from_numpy(numpy_helper.to_array(i).copy()) for i in proto.graph.initializer}
-    # The body's 3x3 convolutions in order; the 1x1 output convolution has no dilation to read.
-    dilations = [next((list(a.ints)[0] for a in n.attribute if a.name == "dilations"), 1)
-                 for n in proto.graph.node if n.op_type == "Conv"][:-1]
-    head = FusionHead(weights["body.0.weight"].shape[0], tuple(dilations))
+    weights = {i.name[len(prefix):]: torch.from_numpy(numpy_helper.to_array(i).copy())
+               for i in proto.graph.initializer if i.name.startswith(prefix)}
+    dilation_of = {n.input[1]: next((list(a.ints)[0] for a in n.attribute if a.name == "dilations"), 1)
+                   for n in proto.graph.node if n.op_type == "Conv"}
+    body = sorted(int(k.split(".")[1]) for k in weights if k.startswith("body.") and k.endswith(".weight"))
+    head = FusionHead(weights["body.0.weight"].shape[0], tuple(dilation_of[f"{prefix}body.{i}.weight"] for i in body))
     head.load_state_dict({k: v for k, v in weights.items() if k.startswith(("body.", "out."))})
+    if "pair" in spec:
+        spec = {k: v for k, v in spec.items() if k != "pair"} | {
+            "outputs": spec["outputs"][:1], "architecture": architecture(head),
+            "parameters": sum(p.numel() for p in head.parameters()), "trained": spec["pair"][part]["trained"],
+            "model": spec["pair"][part]["model"]}
     return head.eval(), spec
+
+
+def architecture(head: FusionHead) -> str:
+    """How a manifest describes one head."""
+    return (f"{len(head.dilations)} dilated 3x3 convolutions of width {head.width} (dilations {list(head.dilations)}); "
+            f"output: a per-pixel convex blend of reference and decoded frame plus {CORRECTION} tanh(correction)")
 
 
 def load_examples(folder: Path):
@@ -140,14 +152,22 @@ def psnr_db(a: torch.Tensor, b: torch.Tensor) -> float:
 
 
 def train(data: list[Path], run: Path, steps: int, batch: int, lr: float, minutes: float | None, width: int, seed: int = 0,
-          edge_weight: float = 0.0, edge_landed: float = 1.0) -> None:
+          edge_weight: float = 0.0, edge_landed: float = 1.0, adversarial_weight: float = 0.0,
+          adversarial_start: int = 500) -> None:
     """Trains the head on `data` (`worldpack fusion-data` folders); the last
     tenth of each folder's examples (its suite's last trajectories) is held
     out and scored against the decoder's frame, the reference and their
     average. Resumes from run/fusion.pt. `edge_weight` > 0 adds the gradient
     difference loss against the truth (losses.py), which keeps the warp's
     edges where an MSE-only head would blend them away; `edge_landed` (in
-    [0, 1]) weighs it per pixel where the warp landed (1 in its holes)."""
+    [0, 1]) weighs it per pixel where the warp landed (1 in its holes).
+
+    `adversarial_weight` > 0 trains the head as pix2pix's generator (Isola et
+    al. 2017): a conditional PatchGAN sees the frame with the reference and
+    the landed mask it was made from, under the hinge loss, its term scaled by
+    VQGAN's adaptive weight (losses.py) from `adversarial_start` on. Where the
+    warp has no pixels the regression terms settle for the mean of what could
+    be there; the discriminator asks for something that could be."""
     run.mkdir(parents=True, exist_ok=True)
     folders = [load_examples(d) for d in data]
     fit = [[x[: len(x) - max(1, len(x) // 10)] for x in f] for f in folders]
@@ -157,21 +177,37 @@ def train(data: list[Path], run: Path, steps: int, batch: int, lr: float, minute
     cut = sum(len(f[0]) for f in fit)
     torch.manual_seed(seed)
     head = FusionHead(width)
-    opt = torch.optim.Adam(head.parameters(), lr=lr)
+    adversarial = adversarial_weight > 0
+    # Adam's betas as pix2pix and VQGAN train their generators when a discriminator is in the loop.
+    betas = (0.5, 0.999) if adversarial else (0.9, 0.999)
+    opt = torch.optim.Adam(head.parameters(), lr=lr, betas=betas)
+    disc = PatchDiscriminator(channels=3 + 3 + 1) if adversarial else None
+    opt_d = torch.optim.Adam(disc.parameters(), lr=lr, betas=betas) if adversarial else None
     ckpt = run / "fusion.pt"
     step = resume(ckpt, head, opt, "the fusion head", key="head")
     config = {"width": width, "dilations": list(head.dilations), "data": [str(d) for d in data], "examples": n, "held_out": n - cut,
               "edge_weight": edge_weight, "edge_landed": edge_landed}
+    if adversarial:
+        config |= {"adversarial_weight": adversarial_weight, "adversarial_start": adversarial_start}
+        if step:
+            state = torch.load(ckpt, weights_only=False)
+            if state["config"] != config:
+                raise SystemExit(f"--run: {ckpt} was trained with {state['config']}, not {config}; use another run folder")
+            disc.load_state_dict(state["disc"])
+            opt_d.load_state_dict(state["opt_d"])
 
     def save():
-        torch.save({"head": head.state_dict(), "opt": opt.state_dict(), "step": step, "config": config}, ckpt)
+        extra = {"disc": disc.state_dict(), "opt_d": opt_d.state_dict()} if adversarial else {}
+        torch.save({"head": head.state_dict(), "opt": opt.state_dict(), "step": step, "config": config, **extra}, ckpt)
 
     def held_out() -> dict:
         with torch.no_grad():
             out = torch.cat([head(pred[i:i + 256], ref[i:i + 256], landed[i:i + 256]) for i in range(cut, n, 256)])
-        t = truth[cut:]
+        t, holes = truth[cut:], 1 - landed[cut:]
         return {"fused": psnr_db(out, t), "decoder": psnr_db(pred[cut:], t), "reference": psnr_db(ref[cut:], t),
-                "average": psnr_db((pred[cut:] + ref[cut:]) / 2, t)}
+                "average": psnr_db((pred[cut:] + ref[cut:]) / 2, t),
+                "sharpness": sharpness_ratio(out, t), "holes_sharpness": sharpness_ratio(out, t, holes),
+                "decoder_sharpness": sharpness_ratio(pred[cut:], t)}
 
     started, last_print = time.time(), time.time()
     gen = torch.Generator().manual_seed(seed + step)
@@ -188,13 +224,27 @@ def train(data: list[Path], run: Path, steps: int, batch: int, lr: float, minute
         if edge_weight > 0:
             where = None if edge_landed == 1 else 1 - (1 - edge_landed) * m
             loss = loss + edge_weight * gradient_difference(out, t, where)
+        weight = 0.0
+        if adversarial and step >= adversarial_start:
+            g_adv = -disc(torch.cat([out, r, m], 1)).mean()
+            weight = adversarial_weight * adaptive_weight(loss, g_adv, head.out.weight)
+            loss = loss + weight * g_adv
         opt.zero_grad()
         loss.backward()
         opt.step()
+        d_loss = 0.0
+        if adversarial:
+            d = hinge_discriminator(disc(torch.cat([t, r, m], 1)), disc(torch.cat([out.detach(), r, m], 1)))
+            opt_d.zero_grad()
+            d.backward()
+            opt_d.step()
+            d_loss = d.item()
         step += 1
         if time.time() - last_print > 30 or step == steps:
             last_print = time.time()
             line = f"step {step}/{steps} loss {loss.item():.5f} ({(time.time() - started) / 60:.1f} min)"
+            if adversarial:
+                line += f" d_loss {d_loss:.3f} adversarial weight {float(weight):.4f}"
             print(line, flush=True)
             log.write(line + "\n")
             log.flush()
@@ -204,10 +254,10 @@ def train(data: list[Path], run: Path, steps: int, batch: int, lr: float, minute
             break
     save()
     scores = held_out()
-    line = "held out ({} examples), PSNR dB: ".format(n - cut) + ", ".join(f"{k} {v:.2f}" for k, v in scores.items())
+    line = "held out ({} examples): ".format(n - cut) + ", ".join(f"{k} {v:.2f}" for k, v in scores.items())
     print(line)
     log.write(line + "\n")
-    (run / "fusion-held-out.json").write_text(json.dumps({"step": step, **config, "psnr": scores}, indent=1))
+    (run / "fusion-held-out.json").write_text(json.dumps({"step": step, **config, "scores": scores}, indent=1))
 
 
 def loss_name(cfg: dict) -> str:
@@ -217,6 +267,9 @@ def loss_name(cfg: dict) -> str:
         name += f" + {cfg['edge_weight']} x gradient difference (Mathieu et al. 2016)"
         if cfg.get("edge_landed", 1) != 1:
             name += f", weighted {cfg['edge_landed']} where the warp landed"
+    if cfg.get("adversarial_weight"):
+        name += (f" + {cfg['adversarial_weight']} x conditional PatchGAN hinge (pix2pix, spectral norm) under VQGAN's adaptive weight, "
+                 f"from step {cfg['adversarial_start']}")
     return name
 
 
@@ -271,8 +324,7 @@ def export(run: Path, model: Path, out: Path, data: Path | None = None) -> None:
             {"name": "landed", "shape": ["batch", 1, h, w], "dtype": "float32", "meaning": "1 where the warp itself landed, else 0"},
         ],
         "outputs": [image_spec("image", "the frame shown, RGB, nominally [-1, 1]; clamp before converting")],
-        "architecture": f"{len(cfg['dilations'])} dilated 3x3 convolutions of width {cfg['width']} (dilations {cfg['dilations']}); "
-                        f"output: a per-pixel convex blend of reference and decoded frame plus {CORRECTION} tanh(correction)",
+        "architecture": architecture(head),
         "parameters": sum(p.numel() for p in head.parameters()),
         "trained": {"steps": state["step"], "examples": cfg["examples"], "data": cfg["data"], "loss": loss_name(cfg)},
     }
@@ -292,8 +344,8 @@ def pair(kept: Path, shown: Path, out: Path, data: Path | None = None, hole_fill
     import onnx
     import tempfile
 
-    kept_head, kept_spec = head_of(kept)
-    shown_head, shown_spec = head_of(shown)
+    kept_head, kept_spec = head_of(kept, "kept")
+    shown_head, shown_spec = head_of(shown, "shown")
     manifest = json.loads((kept / "manifest.json").read_text())
     h, w = manifest["image"]["height"], manifest["image"]["width"]
     shown_image = json.loads((shown / "manifest.json").read_text())["image"]
@@ -310,15 +362,16 @@ def pair(kept: Path, shown: Path, out: Path, data: Path | None = None, hole_fill
             got = heads(*args)
         for name, t in zip(INPUTS + outputs, args + got):
             np.save(staged / "reference" / "fusion" / f"{name}.npy", t.numpy().astype(np.float32))
-        spec = {k: v for k, v in kept_spec.items() if k not in ("trained", "architecture", "parameters")}
+        spec = {k: v for k, v in kept_spec.items() if k not in ("trained", "architecture", "parameters", "model")}
         spec["outputs"] = [kept_spec["outputs"][0], dict(kept_spec["outputs"][0], name="kept",
                                                          meaning="the frame the memory keeps (re-encoded as later frames' context), RGB")]
         spec["architecture"] = f"two heads on the same inputs, one for the frame shown and one for the frame kept; each: {kept_spec['architecture']}" + (
             f"; the kept frame's {hole_fill}x{hole_fill} local mean in the warp's holes replaced by the warp's colours diffused into them"
             if hole_fill else "")
         spec["parameters"] = kept_spec["parameters"] + shown_spec["parameters"]
-        spec["pair"] = {"shown": {"model": shown.name, "trained": shown_spec.get("trained")},
-                        "kept": {"model": kept.name, "trained": kept_spec.get("trained")}, "hole_fill": hole_fill}
+        spec["pair"] = {"shown": {"model": shown_spec.get("model", shown.name), "trained": shown_spec.get("trained")},
+                        "kept": {"model": kept_spec.get("model", kept.name), "trained": kept_spec.get("trained")},
+                        "hole_fill": hole_fill}
         manifest["name"] = out.name
         manifest["fusion"] = spec
         (staged / "manifest.json").write_text(json.dumps(manifest, indent=1))
@@ -326,3 +379,22 @@ def pair(kept: Path, shown: Path, out: Path, data: Path | None = None, hole_fill
             shutil.rmtree(out)
         shutil.copytree(staged, out)
     print(f"wrote {out}: shows {shown.name}'s head's frame, keeps {kept.name}'s")
+
+
+def without_head(model: Path, out: Path) -> None:
+    """A copy of the fused model folder `model` at `out` with its fusion head
+    (graph, manifest entry, references) taken out: the bare model a head's
+    training examples are made with (`worldpack fusion-data --model`)."""
+    manifest = json.loads((model / "manifest.json").read_text())
+    spec = manifest.pop("fusion", None)
+    if spec is None:
+        raise SystemExit(f"--model: {model} has no fusion head to take out")
+    if out.exists():
+        shutil.rmtree(out)
+    shutil.copytree(model, out)
+    (out / spec["file"]).unlink()
+    shutil.rmtree(out / "reference" / "fusion", ignore_errors=True)
+    manifest["reference"]["graphs"].pop("fusion", None)
+    manifest["name"] = out.name
+    (out / "manifest.json").write_text(json.dumps(manifest, indent=1))
+    print(f"wrote {out}: {model.name} without its fusion head")

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import torch
+import torch.nn.functional as F
+from torch import nn
 
 
 def gradient_difference(a: torch.Tensor, b: torch.Tensor, where: torch.Tensor | None = None) -> torch.Tensor:
@@ -18,3 +20,67 @@ def gradient_difference(a: torch.Tensor, b: torch.Tensor, where: torch.Tensor | 
     wy, wx = where[..., 1:, :] * where[..., :-1, :], where[..., :, 1:] * where[..., :, :-1]
     term = lambda d, w: ((d(a).abs() - d(b).abs()).abs() * w).sum() / (w.sum() * a.shape[1] + 1e-6)
     return term(dy, wy) + term(dx, wx)
+
+
+class PatchDiscriminator(nn.Module):
+    """pix2pix's PatchGAN (Isola et al. 2017) as VQGAN uses it, sized for 64x64
+    frames: four 4x4 convolutions (two of stride 2), one logit per 34-pixel
+    patch (14x14 of them). `channels` > 3 makes it conditional: the image
+    comes with what it was made from. Spectral normalisation (Miyato et al.
+    2018) in place of BatchNorm keeps it one function in both of a step's
+    passes (BatchNorm's batch and running statistics differ, so a decoder
+    trained against one mode learned to fool a discriminator that was not the
+    one training) and bounds how fast it can outrun the generator."""
+
+    def __init__(self, channels: int = 3, width: int = 32):
+        super().__init__()
+        sn = nn.utils.parametrizations.spectral_norm
+        self.net = nn.Sequential(
+            sn(nn.Conv2d(channels, width, 4, 2, 1)), nn.LeakyReLU(0.2),
+            sn(nn.Conv2d(width, width * 2, 4, 2, 1)), nn.LeakyReLU(0.2),
+            sn(nn.Conv2d(width * 2, width * 4, 4, 1, 1)), nn.LeakyReLU(0.2),
+            sn(nn.Conv2d(width * 4, 1, 4, 1, 1)),
+        )
+
+    def forward(self, image):
+        return self.net(image)
+
+
+def hinge_discriminator(real_logits: torch.Tensor, fake_logits: torch.Tensor) -> torch.Tensor:
+    """The hinge loss of a discriminator (Lim & Ye 2017, as VQGAN trains it)."""
+    return F.relu(1.0 - real_logits).mean() + F.relu(1.0 + fake_logits).mean()
+
+
+def adaptive_weight(reconstruction: torch.Tensor, adversarial: torch.Tensor, last: torch.Tensor) -> torch.Tensor:
+    """VQGAN's lambda (Esser et al. 2021, eq. 7): the reconstruction term's
+    gradient norm at the generator's last layer over the adversarial term's,
+    so neither swamps the other."""
+    g_rec = torch.autograd.grad(reconstruction, last, retain_graph=True)[0]
+    g_adv = torch.autograd.grad(adversarial, last, retain_graph=True)[0]
+    return (g_rec.norm() / (g_adv.norm() + 1e-4)).clamp(0.0, 1e4).detach()
+
+
+def sharpness_ratio(predicted: torch.Tensor, truth: torch.Tensor, where: torch.Tensor | None = None) -> float:
+    """`worldpack eval`'s sharpness ratio (eval::metrics::sharpness_ratio) on
+    images in [-1, 1]: each frame's luma gradient energy (mean squared
+    difference to the right and below, on 8-bit values) over the truth's,
+    averaged over frames whose truth is not flat. `where` (N, 1, H, W, 0/1):
+    only neighbour pairs it holds at both ends count, and a frame needs 64 of
+    them (eval::metrics::sharpness_ratio_where)."""
+    def luma(x):
+        u8 = ((x.clamp(-1, 1) + 1) * 127.5).round()
+        return 0.299 * u8[:, 0] + 0.587 * u8[:, 1] + 0.114 * u8[:, 2]
+
+    m = torch.ones_like(truth[:, 0]) if where is None else where[:, 0].float()
+    mx, my = m[:, :, 1:] * m[:, :, :-1], m[:, 1:, :] * m[:, :-1, :]
+    pairs = mx.sum((1, 2)) + my.sum((1, 2))
+
+    def energy(x):
+        y = luma(x)
+        dx = (y[:, :, 1:] - y[:, :, :-1]).pow(2) * mx
+        dy = (y[:, 1:, :] - y[:, :-1, :]).pow(2) * my
+        return (dx.sum((1, 2)) + dy.sum((1, 2))) / pairs.clamp(min=1)
+
+    e_truth, e_pred = energy(truth), energy(predicted)
+    keep = (e_truth > 0) & (pairs >= (64 if where is not None else 1))
+    return float((e_pred[keep] / e_truth[keep]).mean()) if keep.any() else float("nan")

@@ -35,57 +35,13 @@ from tqdm import tqdm
 
 from . import data as wdata
 from .autoencoder import psnr
-from .losses import gradient_difference
+from .losses import PatchDiscriminator, adaptive_weight, gradient_difference, hinge_discriminator, sharpness_ratio
 from .train import load_autoencoder, log, optimise, pick_device, save
 
 CHECKPOINT = "decoder-sharp.pt"
 # The decoder sees its latent with this much noise (relative to the latents'
 # spread), as the autoencoder's own training did: a sampler's output is never exact.
 LATENT_NOISE = 0.05
-
-
-class PatchDiscriminator(nn.Module):
-    """pix2pix's PatchGAN (Isola et al. 2017) as VQGAN uses it, sized for 64x64
-    frames: four 4x4 convolutions (two of stride 2), one logit per 34-pixel
-    patch (14x14 of them)."""
-
-    def __init__(self, width: int = 32):
-        super().__init__()
-        self.net = nn.Sequential(
-            nn.Conv2d(3, width, 4, 2, 1), nn.LeakyReLU(0.2),
-            nn.Conv2d(width, width * 2, 4, 2, 1), nn.BatchNorm2d(width * 2), nn.LeakyReLU(0.2),
-            nn.Conv2d(width * 2, width * 4, 4, 1, 1), nn.BatchNorm2d(width * 4), nn.LeakyReLU(0.2),
-            nn.Conv2d(width * 4, 1, 4, 1, 1),
-        )
-
-    def forward(self, image):
-        return self.net(image)
-
-
-def sharpness_ratio(predicted: torch.Tensor, truth: torch.Tensor) -> float:
-    """`worldpack eval`'s sharpness ratio (eval::metrics::sharpness_ratio) on
-    images in [-1, 1]: each frame's luma gradient energy (mean squared
-    difference to the right and below, on 8-bit values) over the truth's,
-    averaged over frames whose truth is not flat."""
-    def energy(x):
-        u8 = ((x.clamp(-1, 1) + 1) * 127.5).round()
-        luma = 0.299 * u8[:, 0] + 0.587 * u8[:, 1] + 0.114 * u8[:, 2]
-        dx = (luma[:, :, 1:] - luma[:, :, :-1]).pow(2).sum((1, 2))
-        dy = (luma[:, 1:, :] - luma[:, :-1, :]).pow(2).sum((1, 2))
-        h, w = luma.shape[1:]
-        return (dx + dy) / (h * (w - 1) + (h - 1) * w)
-
-    e_truth, e_pred = energy(truth), energy(predicted)
-    keep = e_truth > 0
-    return float((e_pred[keep] / e_truth[keep]).mean())
-
-
-def adaptive_weight(reconstruction: torch.Tensor, adversarial: torch.Tensor, last: torch.Tensor) -> torch.Tensor:
-    """VQGAN's lambda: the reconstruction term's gradient norm at the last
-    layer over the adversarial term's, so neither swamps the other."""
-    g_rec = torch.autograd.grad(reconstruction, last, retain_graph=True)[0]
-    g_adv = torch.autograd.grad(adversarial, last, retain_graph=True)[0]
-    return (g_rec.norm() / (g_adv.norm() + 1e-4)).clamp(0.0, 1e4).detach()
 
 
 @torch.no_grad()
@@ -133,7 +89,8 @@ def sharpen_decoder(data: Path, val: Path | None, run: Path, steps: int, batch: 
     opt_g = torch.optim.Adam(decoder.parameters(), lr=lr, betas=(0.5, 0.9))
     opt_d = torch.optim.Adam(disc.parameters(), lr=lr, betas=(0.5, 0.9))
     settings = {"edge_weight": edge_weight, "adversarial_weight": adversarial_weight,
-                "adversarial_start": adversarial_start, "ema_decay": ema_decay, "latent_noise": LATENT_NOISE}
+                "adversarial_start": adversarial_start, "ema_decay": ema_decay, "latent_noise": LATENT_NOISE,
+                "discriminator": "PatchGAN, spectral norm"}
     ckpt = run / CHECKPOINT
     step = 0
     if ckpt.exists():
@@ -173,16 +130,14 @@ def sharpen_decoder(data: Path, val: Path | None, run: Path, steps: int, batch: 
         adversarial_on = adversarial_weight > 0 and step >= adversarial_start
         weight = torch.tensor(0.0)
         if adversarial_on:
-            disc.eval()  # the generator's step uses the discriminator's running statistics
             g_adv = -disc(y).mean()
-            disc.train()
             weight = adversarial_weight * adaptive_weight(reconstruction, g_adv, last)
             loss = reconstruction + weight * g_adv
         optimise(decoder, ema, opt_g, loss, ema_decay)
         d_loss = torch.tensor(0.0)
         if adversarial_weight > 0:
             # The hinge loss on real frames and the decoder's (detached) output.
-            d_loss = F.relu(1.0 - disc(x)).mean() + F.relu(1.0 + disc(y.detach())).mean()
+            d_loss = hinge_discriminator(disc(x), disc(y.detach()))
             opt_d.zero_grad(set_to_none=True)
             d_loss.backward()
             opt_d.step()
