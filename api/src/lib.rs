@@ -12,6 +12,7 @@ mod records;
 mod schemas;
 mod retention;
 mod routes;
+mod state;
 pub mod session;
 pub mod store;
 pub mod tls;
@@ -19,7 +20,6 @@ pub mod tls;
 use std::collections::HashMap;
 use std::net::SocketAddr;
 use std::path::PathBuf;
-use std::sync::atomic::{AtomicU64, AtomicUsize};
 use std::sync::{Arc, RwLock};
 use std::time::Duration;
 
@@ -31,6 +31,7 @@ use tokio::sync::Semaphore;
 pub use error::ApiError;
 use engine::Engine;
 use session::Session;
+use state::{AppState, Metrics, Slot};
 use store::Store;
 
 /// Everything `worldpack serve` can be told.
@@ -106,45 +107,6 @@ impl Default for Config {
             sampled_latents: false,
         }
     }
-}
-
-/// A session and the number of requests queued on it.
-pub(crate) struct Slot {
-    pub session: Arc<tokio::sync::Mutex<Session>>,
-    pub waiting: AtomicUsize,
-    /// The tenant that owns the session (`SessionRecord::tenant`), readable without its lock.
-    pub owner: Option<String>,
-}
-
-impl Slot {
-    pub fn new(session: Session) -> Slot {
-        let owner = session.record.tenant.clone();
-        Slot { session: Arc::new(tokio::sync::Mutex::new(session)), waiting: AtomicUsize::new(0), owner }
-    }
-}
-
-#[derive(Default)]
-pub(crate) struct Metrics {
-    pub steps: AtomicU64,
-    pub observes: AtomicU64,
-    pub selects: AtomicU64,
-    pub sessions_created: AtomicU64,
-    /// Sessions deleted by retention.
-    pub sessions_expired: AtomicU64,
-    pub step_micros: AtomicU64,
-    /// Reads of a shared store's new frames before a request (see `routes::catch_up`).
-    pub catch_ups: AtomicU64,
-    pub catch_up_micros: AtomicU64,
-    pub caught_up_frames: AtomicU64,
-}
-
-pub(crate) struct AppState {
-    pub config: Config,
-    pub tokens: Arc<auth::Tokens>,
-    pub engine: Engine,
-    pub sessions: RwLock<HashMap<u64, Arc<Slot>>>,
-    pub inflight: Semaphore,
-    pub metrics: Metrics,
 }
 
 /// The model in `dir`, its graphs run in this process (`backend` None) or on

@@ -9,7 +9,7 @@ use std::sync::Arc;
 use std::sync::atomic::Ordering;
 use std::time::Duration;
 
-use crate::AppState;
+use crate::state::AppState;
 use crate::error::ApiError;
 use crate::routes::blocking;
 
