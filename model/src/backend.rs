@@ -6,7 +6,8 @@
 use std::path::Path;
 
 use crate::error::ModelError;
-use crate::graph::{Graph, Tensor};
+use crate::graph::Graph;
+use crate::tensor::Tensor;
 use crate::manifest::Manifest;
 use crate::runtime::RuntimeOptions;
 

@@ -5,7 +5,7 @@ use memory::Intrinsics;
 use memory::rng::SplitMix64;
 
 use crate::error::ModelError;
-use crate::graph::Tensor;
+use crate::tensor::Tensor;
 use crate::sampler::Sampler;
 use crate::{GraphRole, Model};
 

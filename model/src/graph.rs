@@ -10,21 +10,8 @@ use ort::value::{TensorRef, ValueType};
 
 use crate::error::ModelError;
 use crate::manifest::{Dim, GraphSpec, TensorSpec};
+use crate::tensor::Tensor;
 use crate::runtime::{RuntimeOptions, build_session};
-
-/// A float32 tensor: shape and row-major data.
-#[derive(Clone, Debug, PartialEq)]
-pub struct Tensor {
-    pub shape: Vec<usize>,
-    pub data: Vec<f32>,
-}
-
-impl Tensor {
-    pub fn new(shape: Vec<usize>, data: Vec<f32>) -> Tensor {
-        debug_assert_eq!(shape.iter().product::<usize>(), data.len());
-        Tensor { shape, data }
-    }
-}
 
 pub struct Graph {
     path: PathBuf,

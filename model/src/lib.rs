@@ -15,13 +15,15 @@ pub mod pack;
 pub mod predict;
 pub mod runtime;
 pub mod sampler;
+pub mod tensor;
 pub mod warp;
 
 use std::path::{Path, PathBuf};
 
 pub use backend::{Backend, GraphRole, LocalGraphs};
 pub use error::ModelError;
-pub use graph::{Graph, Tensor};
+pub use graph::Graph;
+pub use tensor::Tensor;
 pub use manifest::Manifest;
 pub use predict::{Predicted, Request};
 pub use runtime::{Provider, RuntimeOptions};

@@ -8,7 +8,7 @@ use memory::Intrinsics;
 use serde::Deserialize;
 
 use crate::error::ModelError;
-use crate::graph::Tensor;
+use crate::tensor::Tensor;
 
 pub const FORMAT: &str = "worldpack-model/1";
 

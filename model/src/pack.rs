@@ -5,7 +5,7 @@
 use memory::{ContextPlan, Pose};
 
 use crate::error::ModelError;
-use crate::graph::Tensor;
+use crate::tensor::Tensor;
 use crate::manifest::{CONTEXT_NOISE_PREFIX, ContextNoiseSpec, LatentSpec, LayoutSpec};
 
 /// A stored frame as the denoiser needs it: its scaled latent, time and pose,

@@ -9,7 +9,7 @@ use memory::{ContextPlan, Packing, Pose};
 
 use crate::error::ModelError;
 use crate::generate::{Conditioning, tensor_to_frame};
-use crate::graph::Tensor;
+use crate::tensor::Tensor;
 use crate::manifest::LayoutSpec;
 use crate::pack::{ContextFrame, pack, stack};
 use crate::sampler::Sampler;
