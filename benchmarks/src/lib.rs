@@ -1,6 +1,7 @@
 //! The workloads and timing loops behind `worldpack bench`, with the tables
 //! they print; the binary only parses flags and calls them.
 
+pub mod render;
 pub mod select;
 pub mod serve;
 pub mod step;

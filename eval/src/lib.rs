@@ -2,6 +2,7 @@
 //! intervals, the depth-reprojection reference, suite reading, and the
 //! teacher-forced memory probe (see docs/probe.md).
 
+pub mod aba_demo;
 pub mod digest;
 pub mod evaluate;
 pub mod features;

@@ -5,6 +5,9 @@
 //! call the Rust implementation through this, so there is one source of truth.
 
 use std::collections::HashMap;
+use std::io::Read;
+use std::path::PathBuf;
+use std::process::ExitCode;
 
 use memory::overlap::exact_overlap;
 use memory::policy::{LatentGrid, PolicySpec};
@@ -216,7 +219,7 @@ fn describe_pose(p: &Pose) -> Value {
 
 /// Runs every request in `input` (one object or an array); returns the JSON
 /// to print and whether all succeeded.
-pub fn run(input: &str) -> Result<(Value, bool), String> {
+fn answer_all(input: &str) -> Result<(Value, bool), String> {
     let value: Value = serde_json::from_str(input).map_err(|e| format!("input is not valid JSON: {e}"))?;
     let (items, batch) = match value {
         Value::Array(items) => (items, true),
@@ -237,4 +240,32 @@ pub fn run(input: &str) -> Result<(Value, bool), String> {
         .collect();
     let out = if batch { Value::Array(answers) } else { answers.into_iter().next().unwrap_or(Value::Null) };
     Ok((out, ok))
+}
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// Read the request from this file instead of stdin.
+    #[arg(long)]
+    input: Option<PathBuf>,
+}
+
+/// Prints the answers; exit code 2 when any request failed.
+pub fn run(a: &Args) -> ExitCode {
+    let text = match &a.input {
+        Some(path) => std::fs::read_to_string(path).map_err(|e| format!("cannot read {}: {e}", path.display())),
+        None => {
+            let mut s = String::new();
+            std::io::stdin().read_to_string(&mut s).map(|_| s).map_err(|e| format!("cannot read stdin: {e}"))
+        }
+    };
+    match text.and_then(|t| answer_all(&t)) {
+        Ok((out, all_ok)) => {
+            println!("{out}");
+            if all_ok { ExitCode::SUCCESS } else { ExitCode::from(2) }
+        }
+        Err(message) => {
+            eprintln!("worldpack geometry: {message}");
+            ExitCode::from(2)
+        }
+    }
 }

@@ -61,7 +61,7 @@ pub struct Options {
     #[arg(long, default_value = "runs/study")]
     pub out: PathBuf,
     /// A paired contrast, as A:B (row names; A minus B), in the clean condition and under each pose noise.
-    #[arg(long = "contrast", value_parser = crate::probe::parse_contrast)]
+    #[arg(long = "contrast", value_parser = crate::commands::teacher_probe::parse_contrast)]
     pub contrasts: Vec<(String, String)>,
 }
 

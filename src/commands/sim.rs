@@ -1,8 +1,7 @@
 //! `worldpack sim`: the synthetic world from the command line — suites,
 //! training data, single frames — and `worldpack bench render`.
 
-use std::path::Path;
-use std::time::Instant;
+use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
 use crate::cli::{bar, threads};
@@ -10,6 +9,7 @@ use memory::{AngleUnit, Intrinsics, Pose, Pose5, Pose5Convention};
 use world::render::{RenderSettings, cast, render};
 use world::suite::{self, Planned};
 use world::{Biome, Task, World};
+use clap::Subcommand;
 
 /// `WxH`, e.g. `64x64`.
 pub fn parse_size(s: &str) -> Result<(u32, u32), String> {
@@ -169,24 +169,97 @@ fn face_under_pixel(world: &World, camera: &Pose, k: &Intrinsics, settings: &Ren
     })
 }
 
-/// Frames per second of the renderer on one core at several sizes.
-pub fn bench_render(frames: usize, seed: u64) -> Result<()> {
-    let world = World::generate(seed);
-    let spawn = world::agent::spawn_point(&world, None).context("no spawn point")?;
-    println!("renderer, one core, world {seed}, {frames} frames per size turning on the spot at the spawn point");
-    println!("{:>9} | {:>10} {:>10} | {:>8}", "size", "ms/frame", "frames/s", "sky %");
-    for (w, h) in [(64, 64), (128, 128), (224, 224), (640, 360)] {
-        let k = intrinsics((w, h))?;
-        let settings = RenderSettings::default();
-        let mut state = world::PlayerState::at_cell(spawn, 0.0);
-        let (mut sky, start) = (0usize, Instant::now());
-        for i in 0..frames {
-            state.yaw_deg = (i * 360 / frames) as f64;
-            let frame = render(&world, &state.camera(), &k, &settings);
-            sky += frame.depth.iter().filter(|d| !d.is_finite()).count();
+#[derive(Subcommand)]
+pub enum Sim {
+    /// Write the LoopNav evaluation suite: ABA and ABCA at ranges 5, 15, 30, 50 (test world seeds).
+    Loopnav {
+        #[arg(long)]
+        out: PathBuf,
+        /// Trajectories per (task, range); LoopNav uses 18.
+        #[arg(long, default_value_t = 18, value_parser = clap::value_parser!(u32).range(1..=1000))]
+        per_cell: u32,
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+        /// Frame size WxH.
+        #[arg(long, default_value = "64x64", value_parser = parse_size)]
+        size: (u32, u32),
+        /// Comma-separated tasks.
+        #[arg(long, value_delimiter = ',', default_value = "aba,abca", value_parser = parse_task)]
+        tasks: Vec<world::Task>,
+        /// Comma-separated navigation ranges in blocks.
+        #[arg(long, value_delimiter = ',', default_value = "5,15,30,50")]
+        ranges: Vec<i32>,
+    },
+    /// Write the occluder suite: a wall beside the way back hides it from the frames that stand closest to it (test world seeds; docs/geometry.md).
+    Occluders {
+        #[arg(long)]
+        out: PathBuf,
+        /// Scenes (one trajectory each).
+        #[arg(long, default_value_t = 12, value_parser = clap::value_parser!(u32).range(1..=1000))]
+        count: u32,
+        /// Length of the wall and of the way back, in blocks.
+        #[arg(long, default_value_t = 12, value_parser = clap::value_parser!(i32).range(4..=40))]
+        range: i32,
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+        /// Frame size WxH.
+        #[arg(long, default_value = "64x64", value_parser = parse_size)]
+        size: (u32, u32),
+    },
+    /// Write training data: loop-style trajectories and free exploration (training world seeds).
+    Dataset {
+        #[arg(long, value_parser = clap::value_parser!(u32).range(1..=1_000_000))]
+        trajectories: u32,
+        #[arg(long)]
+        out: PathBuf,
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+        #[arg(long, default_value = "64x64", value_parser = parse_size)]
+        size: (u32, u32),
+    },
+    /// Render one frame: rgb.png, depth.png, depth.npy and render.json.
+    Render {
+        #[arg(long)]
+        out: PathBuf,
+        /// World seed.
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+        /// Camera as x,y,z,pitch,yaw (Minecraft convention, degrees, eye position). Default: the spawn point facing +z.
+        #[arg(long, value_parser = parse_pose5, allow_hyphen_values = true)]
+        pose: Option<memory::Pose5>,
+        /// Spawn in this biome instead (plains, forest, desert, snowy, mountains, badlands).
+        #[arg(long, value_parser = parse_biome, conflicts_with = "pose")]
+        biome: Option<world::Biome>,
+        #[arg(long, default_value = "64x64", value_parser = parse_size)]
+        size: (u32, u32),
+        /// Pixel u,v whose block face is reported in render.json (default: the centre).
+        #[arg(long, value_parser = parse_pixel)]
+        probe: Option<(u32, u32)>,
+    },
+}
+
+impl Sim {
+    pub fn name(&self) -> &'static str {
+        match self {
+            Sim::Loopnav { .. } => "sim loopnav",
+            Sim::Occluders { .. } => "sim occluders",
+            Sim::Dataset { .. } => "sim dataset",
+            Sim::Render { .. } => "sim render",
         }
-        let ms = start.elapsed().as_secs_f64() * 1000.0 / frames as f64;
-        println!("{:>9} | {:>10.2} {:>10.1} | {:>7.1}%", format!("{w}x{h}"), ms, 1000.0 / ms, 100.0 * sky as f64 / (frames * (w * h) as usize) as f64);
     }
-    Ok(())
+
+    pub fn run(&self) -> Result<()> {
+        match self {
+            Sim::Loopnav { out, per_cell, seed, size, tasks, ranges } => loopnav(out, *per_cell as usize, *seed, *size, tasks, ranges),
+            Sim::Occluders { out, count, range, seed, size } => occluders(out, *count as usize, *range, *seed, *size),
+            Sim::Dataset { trajectories, out, seed, size } => dataset(out, *trajectories as usize, *seed, *size),
+            Sim::Render { out, seed, pose, biome, size, probe } => render_one(out, *seed, *pose, *biome, *size, *probe),
+        }
+    }
+}
+
+fn parse_pixel(s: &str) -> Result<(u32, u32), String> {
+    let (u, v) = s.split_once(',').ok_or_else(|| format!("expected u,v, got {s:?}"))?;
+    let n = |t: &str| t.trim().parse::<u32>().map_err(|_| format!("expected whole pixel coordinates u,v, got {s:?}"));
+    Ok((n(u)?, n(v)?))
 }

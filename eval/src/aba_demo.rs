@@ -1,4 +1,4 @@
-//! `worldpack demo`: the memory server's main job on a built-in trajectory.
+//! The memory server's main job on a built-in trajectory (`worldpack demo`).
 //!
 //! A LoopNav-style ABA walk (look around at A, walk to B, come back): on
 //! every step of the return leg, each policy plans the context for the next
@@ -120,20 +120,4 @@ fn covered_share(target: &Frustum, chosen: &[&MemoryFrame]) -> f64 {
         samples.remove_seen_by(&f.frustum);
     }
     1.0 - samples.len() as f64 / total
-}
-
-pub fn print(range: u32, rows: &[Row]) {
-    println!("ABA loop, range {range} blocks, 70° FoV, far 30: context for each return-leg frame\n");
-    println!("{:<24} {:>16} {:>20} {:>16}", "policy", "view covered", "from exploration", "select (µs)");
-    for r in rows {
-        println!(
-            "{:<24} {:>15.1}% {:>19.1}% {:>16.1}",
-            format!("{:?}", r.policy),
-            100.0 * r.coverage,
-            100.0 * r.from_exploration,
-            r.median_us
-        );
-    }
-    println!("\nview covered: share of the next frame's frustum inside at least one selected frame's frustum.");
-    println!("from exploration: share of selected frames taken before the return leg began.");
 }

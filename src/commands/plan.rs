@@ -2,7 +2,7 @@
 //! suite or dataset by the same selection code that serves the model, so
 //! training and serving pick memories identically.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicUsize, Ordering};
 
 use anyhow::{Context, Result, bail};
@@ -10,6 +10,20 @@ use memory::{FrameMemory, Frustum, Intrinsics, MemoryFrame, Policy, PolicyKind, 
 use serde::Deserialize;
 
 use crate::cli::{bar, threads};
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// A folder written by `worldpack sim dataset` or `sim loopnav`.
+    #[arg(long)]
+    pub data: PathBuf,
+    /// Comma-separated policies by name (memory::variants): the presets baseline, nearest_frame_packing, memory_retrieval, worldpack, worldmem_greedy, and the options memory_retrieval_target, worldpack_target, worldpack_keep_last.
+    #[arg(long, value_delimiter = ',', default_value = "baseline,nearest_frame_packing,memory_retrieval,worldpack",
+          value_parser = parse_variant)]
+    pub policies: Vec<&'static memory::Variant>,
+    /// Also write memory-need.npy per trajectory: the share of each frame's view that only frames older than the 4 newest show (for `train --memory-focus`).
+    #[arg(long)]
+    pub memory_need: bool,
+}
 
 pub const PLANS_FORMAT: &str = "worldpack-plans/1";
 
@@ -58,7 +72,11 @@ pub fn parse_variant(s: &str) -> Result<&'static Variant, String> {
 /// newest show ([`eval::strata::memory_need`], every [`NEED_STRIDE`]-th pixel
 /// row and column), so training can draw more of the targets where memory
 /// beyond recency helps.
-pub fn run(data: &Path, variants: &[&'static Variant], memory_need: bool) -> Result<()> {
+pub fn run(a: &Args) -> Result<()> {
+    write_plans(&a.data, &a.policies, a.memory_need)
+}
+
+fn write_plans(data: &Path, variants: &[&'static Variant], memory_need: bool) -> Result<()> {
     let index_path = data.join("index.json");
     let text = std::fs::read_to_string(&index_path)
         .with_context(|| format!("--data: no suite at {} (make one with `worldpack sim dataset`)", index_path.display()))?;

@@ -22,7 +22,7 @@ pub struct Options {
     #[arg(long, default_value = "fixtures/variants")]
     pub models: PathBuf,
     /// Comma-separated policies; worldmem_greedy runs with the memory_retrieval weights.
-    #[arg(long, value_delimiter = ',', value_parser = crate::plan::parse_policy,
+    #[arg(long, value_delimiter = ',', value_parser = crate::commands::plan::parse_policy,
           default_value = "baseline,nearest_frame_packing,memory_retrieval,worldpack,worldmem_greedy")]
     pub policies: Vec<memory::PolicyKind>,
     /// Leave out the copy and reproject references.
@@ -195,7 +195,14 @@ fn print(s: &Summary) {
 }
 
 /// `worldpack compare A.png B.png`: the metrics of two images, as JSON.
-pub fn compare(a: &Path, b: &Path) -> Result<()> {
+#[derive(clap::Args)]
+pub struct CompareArgs {
+    a: PathBuf,
+    b: PathBuf,
+}
+
+pub fn compare(args: &CompareArgs) -> Result<()> {
+    let (a, b) = (&args.a, &args.b);
     let (wa, ha, pa) = read_rgb(a)?;
     let (wb, hb, pb) = read_rgb(b)?;
     if (wa, ha) != (wb, hb) {
