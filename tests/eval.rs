@@ -47,7 +47,8 @@ fn reduced_rollout_suite_runs_resumes_and_scores_every_frame() {
     let suite = suite("rollout");
     let out = temp("out");
     let args = ["eval", "--suite", suite.to_str().unwrap(), "--out", out.to_str().unwrap(), "--max-frames", "5", "--steps", "2", "--threads", "1",
-        "--strip", "worldpack,copy", "--strip-frames", "3", "--reconstruct", "worldpack"];
+        "--strip", "worldpack,copy", "--strip-frames", "3", "--reconstruct", "worldpack",
+        "--extra", "worldpack_keep_last=fixtures/variants/worldpack_keep_last"];
     ok(&args);
     let first = json(&out.join("results.json"));
     strip_shows_the_scored_frames(&first, &out.join("strip.png"));

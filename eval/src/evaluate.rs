@@ -247,16 +247,6 @@ pub fn evaluate(s: &Settings, progress: &dyn Fn(Progress)) -> Result<Evaluation,
         let m = &models[weights_for(kind)];
         rows.push((Row { name: kind.name().to_string(), predictor: Predictor::Model { model: m, policy: Policy::preset(kind), sampler: sampler(m)? } }, Some(m)));
     }
-    // WorldPack fine-tuned with the newest frame kept, when that variant is there.
-    let keep_last_dir = s.models.join("worldpack_keep_last");
-    let keep_last = if s.policies.contains(&PolicyKind::WorldPack) && keep_last_dir.join("manifest.json").exists() {
-        Some(load(&keep_last_dir, format!("loading {}", keep_last_dir.display()))?)
-    } else {
-        None
-    };
-    if let Some(m) = &keep_last {
-        rows.push((Row { name: "worldpack_keep_last".into(), predictor: Predictor::Model { model: m, policy: m.trained_policy(), sampler: sampler(m)? } }, Some(m)));
-    }
     for (name, m) in &extras {
         rows.push((Row { name: name.clone(), predictor: Predictor::Model { model: m, policy: m.trained_policy(), sampler: sampler(m)? } }, Some(m)));
     }
