@@ -216,8 +216,14 @@ fn feature_networks_add_lpips_dreamsim_and_fvd() {
 fn probe_compares_every_row_with_the_baseline() {
     let suite = suite("probe");
     let out = temp("probe").join("probe.json");
-    ok(&["probe", "--suite", suite.to_str().unwrap(), "--steps", "2", "--stride", "6", "--latency-calls", "2", "--threads", "1",
-        "--sweep-steps", "1", "--out", out.to_str().unwrap()]);
+    // The first-trained generation: its WorldPack also has a recency layout, so every probe row runs.
+    let models = temp("probe-models");
+    for (name, from) in [("baseline", "baseline_12k"), ("worldpack", "worldpack_12k"), ("nearest_frame_packing", "nearest_frame_packing"),
+        ("memory_retrieval", "memory_retrieval"), ("worldpack_keep_last", "worldpack_keep_last")] {
+        copy_dir(&root().join("fixtures/variants").join(from), &models.join(name));
+    }
+    ok(&["probe", "--suite", suite.to_str().unwrap(), "--models", models.to_str().unwrap(), "--steps", "2", "--stride", "6", "--latency-calls", "2",
+        "--threads", "1", "--sweep-steps", "1", "--out", out.to_str().unwrap()]);
     let report = json(&out);
     let rows = report["rows"].as_array().unwrap();
     let names: Vec<&str> = rows.iter().map(|r| r["name"].as_str().unwrap()).collect();
