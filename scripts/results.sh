@@ -21,7 +21,8 @@ if [ ! -x .venv/bin/python ]; then
   python3 -m venv .venv
   .venv/bin/python -m pip install --disable-pip-version-check -q -r tests/requirements.txt
 fi
-cargo build --release --bin worldpack
+# The build ./scripts/test.sh makes (cargo test's features; `cargo build --bin` would build the tree again).
+[ -x target/release/worldpack ] || cargo test --release --workspace --no-run
 bin=target/release/worldpack
 if [ ! -f "$suite/index.json" ]; then
   "$bin" sim loopnav --per-cell "$per_cell" --seed "$seed" --out "$suite"
