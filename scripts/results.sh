@@ -41,6 +41,6 @@ if [ "${STUDY:-0}" != 0 ]; then
   "$bin" study --suite "$suite" --extra served="$served" --vo poses-vo.npy --out runs/study
   study=(--study runs/study/study.json)
 fi
-command="./scripts/results.sh $*"
+command="./scripts/results.sh${*:+ $*}"
 [ "$suite" = data/loopnav-test ] || command="SUITE=$suite $command"
 .venv/bin/python scripts/report.py "$out/results.json" "${study[@]}" --command "$command" -o docs/results.md
