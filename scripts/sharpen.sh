@@ -11,7 +11,8 @@
 #                                              # trained on the sharp-decoder student's own frames: runs/sharp/voxel/head/model
 #                                              # (HEAD_STEPS, ADVERSARIAL, MINUTES; SHARP: the model whose decoder it sits on)
 #   ./scripts/sharpen.sh eval voxel|doom       # it against the served model, paired (SUITE to change it;
-#                                              # CANDIDATE: another model folder than runs/sharp/<world>/model)
+#                                              # CANDIDATE: another model folder than runs/sharp/<world>/model, OUT: its folder)
+# RUN: another run folder than runs/sharp/<world> (a fresh fine-tune beside a finished one).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 threads="${THREADS:-1}"
@@ -29,8 +30,8 @@ case "$world" in
   "") [ "${1:-}" = data ] || { echo "usage: $0 data | breakdown|train|swap|eval voxel|doom" >&2; exit 2; } ;;
   *) echo "world: voxel or doom, not $world" >&2; exit 2 ;;
 esac
-run="runs/sharp/$world"
-out="runs/sharp/eval-$world-$(basename "${suite:-none}")"
+run="${RUN:-runs/sharp/$world}"
+out="${OUT:-runs/sharp/eval-$world-$(basename "${suite:-none}")}"
 
 case "${1:-}" in
   data)
