@@ -9,7 +9,7 @@
 # one (the manifest's grid; --steps and --method do not apply to it). With
 # flags, they all go to `worldpack serve` as
 # given (its own defaults: fixtures/small, 16 ancestral steps; see
-# `cargo run --release -- serve --help`). On first use it installs ONNX
+# `target/release/worldpack serve --help`). On first use it installs ONNX
 # Runtime (the PyPI wheel, pinned in tests/requirements.txt) into .venv.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -21,4 +21,7 @@ fi
 if [ $# -eq 0 ]; then
   set -- --model fixtures/variants/worldpack_geometry_fused_1step --policy worldpack --method ddim --steps 1 --covisible
 fi
-exec cargo run --release --bin worldpack -- serve "$@"
+# The build ./scripts/test.sh makes (cargo test's feature set): after the tests this compiles
+# nothing; `cargo run --bin` would build the tree again with another.
+cargo test --release --workspace --no-run -q
+exec target/release/worldpack serve "$@"
