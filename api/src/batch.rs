@@ -19,7 +19,7 @@ use memory::{ContextPlan, Intrinsics, Packing, Pose};
 use model::pack::ContextFrame;
 use model::{Model, ModelError, Predicted, Request, Sampler, WarpSource};
 
-use crate::error::ApiError;
+use crate::refusal::EngineError;
 
 /// A stored frame an item's plan refers to, owned so the item can cross threads.
 pub struct OwnedFrame {
@@ -92,13 +92,13 @@ impl Batcher {
     }
 
     /// Predicts `item`'s frame, possibly in one call with other sessions' items.
-    pub fn predict(&self, model: &Model, packing: &Packing, sampler: &Sampler, item: Item) -> Result<Outcome, ApiError> {
+    pub fn predict(&self, model: &Model, packing: &Packing, sampler: &Sampler, item: Item) -> Result<Outcome, EngineError> {
         let (reply, answer) = mpsc::channel();
         self.queue.lock().expect("batch queue").push(Job { packing: packing.clone(), sampler: sampler.clone(), item, reply });
         if !self.leading.swap(true, Ordering::AcqRel) {
             self.lead(model);
         }
-        let outcome = answer.recv().map_err(|_| ApiError::internal("the model call this step was batched into was lost"))?;
+        let outcome = answer.recv().map_err(|_| EngineError::internal("the model call this step was batched into was lost"))?;
         Ok(outcome?)
     }
 

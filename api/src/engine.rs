@@ -17,7 +17,7 @@ use world::picture::{encode_depth_png16, encode_png};
 use world::render::{RenderSettings, render};
 
 use crate::batch::{self, Batcher, Item, OwnedFrame, OwnedWarp};
-use crate::error::ApiError;
+use crate::refusal::EngineError;
 use crate::session::{GENERATED, OBSERVED, Session, player_to};
 use crate::store::{FrameMeta, FrameRecord, SessionRecord, Store};
 
@@ -74,8 +74,13 @@ impl Engine {
         w
     }
 
+    /// The model, or the one refusal of a server that runs without one.
+    pub fn model(&self) -> Result<&Model, EngineError> {
+        self.model.as_ref().ok_or_else(EngineError::no_model)
+    }
+
     /// The camera of synthetic sessions: the model's, else the world's default at 64x64.
-    pub fn synthetic_camera(&self) -> Result<Intrinsics, ApiError> {
+    pub fn synthetic_camera(&self) -> Result<Intrinsics, EngineError> {
         match &self.model {
             Some(m) => Ok(m.manifest().intrinsics),
             None => Ok(world::suite::default_intrinsics(64, 64)?),
@@ -83,22 +88,22 @@ impl Engine {
     }
 
     /// The model's scaled latent of an RGB frame (empty without a model).
-    pub fn latent_of(&self, rgb: &[u8], w: u32, h: u32, k: &Intrinsics, field: &str) -> Result<Vec<f32>, ApiError> {
+    pub fn latent_of(&self, rgb: &[u8], w: u32, h: u32, k: &Intrinsics, field: &str) -> Result<Vec<f32>, EngineError> {
         let Some(m) = &self.model else { return Ok(Vec::new()) };
         let img = &m.manifest().image;
         let (t, _) = frame_to_tensor(rgb, w, h, k, img.width as u32, img.height as u32).map_err(|e| match e {
-            model::ModelError::Input { message, .. } => ApiError::bad(field, message),
-            other => ApiError::internal(other),
+            model::ModelError::Input { message, .. } => EngineError::invalid(field, message),
+            other => EngineError::internal(other),
         })?;
         Ok(m.encode(&t)?.data)
     }
 
     /// A new session in the synthetic world: spawn (in `biome` if given), render, store.
-    pub fn create_synthetic(&self, policy: serde_json::Value, seed: u64, biome: Option<world::Biome>, tenant: Option<String>) -> Result<Session, ApiError> {
+    pub fn create_synthetic(&self, policy: serde_json::Value, seed: u64, biome: Option<world::Biome>, tenant: Option<String>) -> Result<Session, EngineError> {
         let k = self.synthetic_camera()?;
         let world = self.world(seed);
         let cell = world::agent::spawn_point(&world, biome)
-            .ok_or_else(|| ApiError::bad("synthetic.biome", "this world has no standable spawn in that biome"))?;
+            .ok_or_else(|| EngineError::invalid("synthetic.biome", "this world has no standable spawn in that biome"))?;
         let player = PlayerState::at_cell(cell, 0.0);
         let (first, _) = self.world_frame(&world, &k, 0, None, &player)?;
         self.create(SessionRecord { policy, intrinsics: k, world_seed: Some(seed), tenant }, vec![first], Some(world))
@@ -106,7 +111,7 @@ impl Engine {
 
     /// What the synthetic world shows `player`'s camera, as an observed frame
     /// with the world's depth (as a depth camera would give it), and the depth.
-    fn world_frame(&self, world: &World, k: &Intrinsics, time: u64, action: Option<&Action>, player: &PlayerState) -> Result<(FrameRecord, Vec<u16>), ApiError> {
+    fn world_frame(&self, world: &World, k: &Intrinsics, time: u64, action: Option<&Action>, player: &PlayerState) -> Result<(FrameRecord, Vec<u16>), EngineError> {
         let frame = render(world, &player.camera(), k, &RenderSettings::default());
         let latent = self.latent_of(&frame.rgb, k.width, k.height, k, "synthetic")?;
         let depth: Vec<u16> = frame.depth.iter().map(|&d| world::suite::depth_to_mm(d)).collect();
@@ -123,19 +128,19 @@ impl Engine {
     /// the camera and the world's true frame and depth there are stored as
     /// an observed frame (exploration, as a robot's camera would record it);
     /// nothing is generated.
-    pub fn step_observed(&self, s: &mut Session, action: &Action) -> Result<StepOutcome, ApiError> {
+    pub fn step_observed(&self, s: &mut Session, action: &Action) -> Result<StepOutcome, EngineError> {
         let (Some(world), Some(_)) = (s.world.clone(), s.frames.last().and_then(|f| f.player)) else {
-            return Err(ApiError::bad("observe", "only synthetic sessions have a world to observe; send real frames to /observe"));
+            return Err(EngineError::invalid("observe", "only synthetic sessions have a world to observe; send real frames to /observe"));
         };
         let (pose, player) = s.motion(action)?;
-        let player = player.ok_or_else(|| ApiError::internal("a synthetic session's motion without a player"))?;
+        let player = player.ok_or_else(|| EngineError::internal("a synthetic session's motion without a player"))?;
         let t0 = Instant::now();
         let (time, index) = (s.next_time(), s.frames.len() as u64);
         let k = *s.intrinsics();
         let (record, depth) = self.world_frame(&world, &k, time, Some(action), &player)?;
         self.store.put_frame(s.id, index, &record)?;
         s.push(time, pose, record.latent, Some(player), false)?;
-        let rgb = world::picture::decode_rgb(&record.png).map_err(ApiError::internal)?.0;
+        let rgb = world::picture::decode_rgb(&record.png).map_err(EngineError::internal)?.0;
         s.add_depth(index, rgb, k.width, k.height, depth)?;
         Ok(StepOutcome {
             index,
@@ -153,8 +158,8 @@ impl Engine {
     }
 
     /// Stores a new session with its first frames and returns it, indexed.
-    pub fn create(&self, record: SessionRecord, frames: Vec<FrameRecord>, world: Option<Arc<World>>) -> Result<Session, ApiError> {
-        let first = frames.first().ok_or_else(|| ApiError::bad("frames", "give at least one frame"))?;
+    pub fn create(&self, record: SessionRecord, frames: Vec<FrameRecord>, world: Option<Arc<World>>) -> Result<Session, EngineError> {
+        let first = frames.first().ok_or_else(|| EngineError::invalid("frames", "give at least one frame"))?;
         let id = self.store.create_session(&record, first)?;
         for (i, f) in frames.iter().enumerate().skip(1) {
             self.store.put_frame(id, i as u64, f)?;
@@ -163,10 +168,8 @@ impl Engine {
     }
 
     /// Generates the next frame of `s` and commits it before returning.
-    pub fn step(&self, s: &mut Session, action: &Action, pose: Option<Pose>, sampler: &Sampler, seed: Option<u64>) -> Result<StepOutcome, ApiError> {
-        let m = self.model.as_ref().ok_or_else(|| {
-            ApiError::new(axum::http::StatusCode::CONFLICT, "model", "this server runs without a model (memory only): use observe")
-        })?;
+    pub fn step(&self, s: &mut Session, action: &Action, pose: Option<Pose>, sampler: &Sampler, seed: Option<u64>) -> Result<StepOutcome, EngineError> {
+        let m = self.model()?;
         let t0 = Instant::now();
         let (pose, player) = match pose {
             Some(p) => (p, None),
@@ -247,7 +250,7 @@ impl Engine {
 
     /// What a synthetic session's world shows at `pose` (RGB at the session's
     /// camera); `None` for sessions of real frames, which have no truth here.
-    pub fn truth_at(&self, s: &Session, pose: &Pose) -> Result<Option<Vec<u8>>, ApiError> {
+    pub fn truth_at(&self, s: &Session, pose: &Pose) -> Result<Option<Vec<u8>>, EngineError> {
         let Some(world) = &s.world else { return Ok(None) };
         let k = s.intrinsics();
         Ok(Some(render(world, pose, k, &RenderSettings::default()).rgb))
@@ -255,13 +258,13 @@ impl Engine {
 
     /// Appends a caller's frame (encoded when a model is loaded), with its
     /// depth PNG when given, and commits it.
-    pub fn observe(&self, s: &mut Session, rgb: &[u8], w: u32, h: u32, pose: Pose, action: Option<&Action>, depth_png16: Vec<u8>) -> Result<(u64, u64), ApiError> {
+    pub fn observe(&self, s: &mut Session, rgb: &[u8], w: u32, h: u32, pose: Pose, action: Option<&Action>, depth_png16: Vec<u8>) -> Result<(u64, u64), EngineError> {
         let k = *s.intrinsics();
         let latent = self.latent_of(rgb, w, h, &k, "image_png")?;
         s.frustum(pose)?;
         let time = s.next_time();
         let index = s.frames.len() as u64;
-        let depth = if depth_png16.is_empty() { None } else { Some(world::picture::decode_depth_png16(&depth_png16).map_err(|e| ApiError::bad("depth_png16", e))?.0) };
+        let depth = if depth_png16.is_empty() { None } else { Some(world::picture::decode_depth_png16(&depth_png16).map_err(|e| EngineError::invalid("depth_png16", e))?.0) };
         let record = FrameRecord { meta: meta(&pose, time, OBSERVED, action, None), latent, png: encode_png(w, h, rgb), depth_png16 };
         self.store.put_frame(s.id, index, &record)?;
         s.push(time, pose, record.latent, None, false)?;

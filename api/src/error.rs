@@ -7,6 +7,8 @@ use axum::response::{IntoResponse, Response};
 use serde::Serialize;
 use utoipa::ToSchema;
 
+use crate::refusal::{EngineError, Kind};
+
 /// Seconds a refused client should wait before trying again (a step takes tens of milliseconds).
 pub const RETRY_AFTER_S: &str = "1";
 
@@ -46,29 +48,34 @@ impl IntoResponse for ApiError {
     }
 }
 
+impl From<EngineError> for ApiError {
+    fn from(e: EngineError) -> Self {
+        let status = match e.kind {
+            Kind::Invalid => StatusCode::BAD_REQUEST,
+            Kind::NotFound => StatusCode::NOT_FOUND,
+            Kind::Conflict => StatusCode::CONFLICT,
+            Kind::Unavailable => StatusCode::SERVICE_UNAVAILABLE,
+            Kind::Internal => StatusCode::INTERNAL_SERVER_ERROR,
+        };
+        ApiError::new(status, e.field, e.message)
+    }
+}
+
 impl From<memory::InputError> for ApiError {
     fn from(e: memory::InputError) -> Self {
-        ApiError::bad(e.field(), e.to_string())
+        EngineError::from(e).into()
     }
 }
 
 impl From<model::ModelError> for ApiError {
     fn from(e: model::ModelError) -> Self {
-        match e {
-            model::ModelError::Input { field, message } => ApiError::bad(field, message),
-            model::ModelError::Unavailable { ref service, .. } => ApiError::new(StatusCode::SERVICE_UNAVAILABLE, service.clone(), e.to_string()),
-            other => ApiError::internal(other),
-        }
+        EngineError::from(e).into()
     }
 }
 
 impl From<crate::store::StoreError> for ApiError {
     fn from(e: crate::store::StoreError) -> Self {
-        match e {
-            crate::store::StoreError::Unavailable(_) => ApiError::new(StatusCode::SERVICE_UNAVAILABLE, "store", e.to_string()),
-            crate::store::StoreError::Taken { .. } => ApiError::new(StatusCode::CONFLICT, "session", e.to_string()),
-            other => ApiError::internal(other),
-        }
+        EngineError::from(e).into()
     }
 }
 

@@ -9,6 +9,7 @@ pub mod error;
 pub mod openapi;
 pub mod postgres_store;
 mod records;
+pub mod refusal;
 mod schemas;
 mod retention;
 mod routes;
@@ -29,6 +30,7 @@ use model::{Method, Model};
 use tokio::sync::Semaphore;
 
 pub use error::ApiError;
+pub use refusal::EngineError;
 use engine::Engine;
 use session::Session;
 use state::{AppState, Metrics, Slot};

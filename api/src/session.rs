@@ -13,7 +13,7 @@ use world::World;
 use motion::{Action, Kinematic, MotionModel};
 use world::agent::PlayerState;
 
-use crate::error::ApiError;
+use crate::refusal::EngineError;
 use crate::store::{FrameMeta, FrameRecord, SessionRecord};
 
 pub struct Frame {
@@ -53,24 +53,24 @@ pub struct Session {
 pub const GENERATED: &str = "generated";
 pub const OBSERVED: &str = "observed";
 
-pub fn policy_of(spec: &serde_json::Value) -> Result<Policy, ApiError> {
+pub fn policy_of(spec: &serde_json::Value) -> Result<Policy, EngineError> {
     let spec: PolicySpec = serde_path_to_error::deserialize(spec.clone())
-        .map_err(|e| ApiError::bad(format!("policy.{}", e.path()).trim_end_matches(".").to_string(), e.inner().to_string()))?;
+        .map_err(|e| EngineError::invalid(format!("policy.{}", e.path()).trim_end_matches(".").to_string(), e.inner().to_string()))?;
     Ok(spec.into_policy().map_err(|e| e.within("policy"))?)
 }
 
-fn pool_depth(depth_mm: &[u16], k: &Intrinsics, cells: u32) -> Result<DepthGrid, ApiError> {
-    coarse_depth(depth_mm, k, cells).map_err(|e| ApiError::bad("covisibility.cells", e.to_string()))
+fn pool_depth(depth_mm: &[u16], k: &Intrinsics, cells: u32) -> Result<DepthGrid, EngineError> {
+    coarse_depth(depth_mm, k, cells).map_err(|e| EngineError::invalid("covisibility.cells", e.to_string()))
 }
 
-pub fn pose_of(meta: &FrameMeta) -> Result<Pose, ApiError> {
+pub fn pose_of(meta: &FrameMeta) -> Result<Pose, EngineError> {
     Ok(Pose::from_matrix_rows(meta.c2w)?)
 }
 
 impl Session {
     /// Rebuilds a session from its stored record and frames (server start,
     /// or a session another server made on a shared store).
-    pub fn restore(id: u64, record: SessionRecord, frames: Vec<FrameRecord>, world: Option<Arc<World>>) -> Result<Session, ApiError> {
+    pub fn restore(id: u64, record: SessionRecord, frames: Vec<FrameRecord>, world: Option<Arc<World>>) -> Result<Session, EngineError> {
         let policy = policy_of(&record.policy)?;
         let mut s = Session {
             id,
@@ -91,15 +91,15 @@ impl Session {
 
     /// Indexes stored frames that follow the ones indexed already (frames
     /// another server wrote to a shared store, or all of them at a restore).
-    pub fn append_stored(&mut self, frames: Vec<FrameRecord>) -> Result<(), ApiError> {
+    pub fn append_stored(&mut self, frames: Vec<FrameRecord>) -> Result<(), EngineError> {
         for f in frames {
             let index = self.frames.len() as u64;
             let generated = f.meta.source == GENERATED;
             self.push(f.meta.time, pose_of(&f.meta)?, f.latent, f.meta.player.map(player_from), generated)?;
             if !f.depth_png16.is_empty() {
                 // Both were checked when they arrived; a stored frame that no longer decodes is the store's fault.
-                let (rgb, w, h) = world::picture::decode_rgb(&f.png).map_err(ApiError::internal)?;
-                let (depth, _, _) = world::picture::decode_depth_png16(&f.depth_png16).map_err(ApiError::internal)?;
+                let (rgb, w, h) = world::picture::decode_rgb(&f.png).map_err(EngineError::internal)?;
+                let (depth, _, _) = world::picture::decode_depth_png16(&f.depth_png16).map_err(EngineError::internal)?;
                 self.add_depth(index, rgb, w, h, depth)?;
             }
         }
@@ -110,12 +110,12 @@ impl Session {
         &self.record.intrinsics
     }
 
-    pub fn frustum(&self, pose: Pose) -> Result<Frustum, ApiError> {
+    pub fn frustum(&self, pose: Pose) -> Result<Frustum, EngineError> {
         Ok(Frustum::new(pose, self.record.intrinsics)?)
     }
 
     /// Adds a committed frame to the in-memory index.
-    pub fn push(&mut self, time: u64, pose: Pose, latent: Vec<f32>, player: Option<PlayerState>, generated: bool) -> Result<(), ApiError> {
+    pub fn push(&mut self, time: u64, pose: Pose, latent: Vec<f32>, player: Option<PlayerState>, generated: bool) -> Result<(), EngineError> {
         let frustum = self.frustum(pose)?;
         self.memory.insert(MemoryFrame { id: self.frames.len() as u64, time, frustum })?;
         self.frames.push(Frame { pose, time, latent, player, generated });
@@ -124,12 +124,12 @@ impl Session {
 
     /// Indexes frame `index`'s depth as a warp source. Frames not at the
     /// session's camera size are left out (the warp needs its intrinsics).
-    pub fn add_depth(&mut self, index: u64, rgb: Vec<u8>, width: u32, height: u32, depth_mm: Vec<u16>) -> Result<(), ApiError> {
+    pub fn add_depth(&mut self, index: u64, rgb: Vec<u8>, width: u32, height: u32, depth_mm: Vec<u16>) -> Result<(), EngineError> {
         let k = self.record.intrinsics;
         if (width, height) != (k.width, k.height) {
             return Ok(());
         }
-        let f = self.frames.get(index as usize).ok_or_else(|| ApiError::internal(format!("depth for frame {index}, which is not indexed")))?;
+        let f = self.frames.get(index as usize).ok_or_else(|| EngineError::internal(format!("depth for frame {index}, which is not indexed")))?;
         let frustum = self.frustum(f.pose)?;
         self.depth_memory.insert(MemoryFrame { id: index, time: f.time, frustum })?;
         self.depth_grids.insert(index, pool_depth(&depth_mm, &k, CoVisibility::default().cells)?);
@@ -139,16 +139,16 @@ impl Session {
 
     /// Every observed frame's depth pooled to `cells` columns (metres;
     /// memory::covisibility), by frame index.
-    pub fn depth_grids(&self, cells: u32) -> Result<Cow<'_, HashMap<u64, DepthGrid>>, ApiError> {
+    pub fn depth_grids(&self, cells: u32) -> Result<Cow<'_, HashMap<u64, DepthGrid>>, EngineError> {
         if cells == CoVisibility::default().cells {
             return Ok(Cow::Borrowed(&self.depth_grids));
         }
         let k = self.intrinsics();
-        Ok(Cow::Owned(self.depth_frames.iter().map(|(&id, d)| Ok((id, pool_depth(&d.depth_mm, k, cells)?))).collect::<Result<_, ApiError>>()?))
+        Ok(Cow::Owned(self.depth_frames.iter().map(|(&id, d)| Ok((id, pool_depth(&d.depth_mm, k, cells)?))).collect::<Result<_, EngineError>>()?))
     }
 
     /// The session policy's plan for `target` by co-visibility (default settings).
-    pub fn covisible_plan(&self, target: &Frustum) -> Result<ContextPlan, ApiError> {
+    pub fn covisible_plan(&self, target: &Frustum) -> Result<ContextPlan, EngineError> {
         let settings = CoVisibility::default();
         let (plan, _) = covisibility::select(&self.memory, &self.policy, target, &settings, self.last_plan.as_ref(), |id| self.depth_grids.get(&id))?;
         Ok(plan)
@@ -158,7 +158,7 @@ impl Session {
     /// `covisible`, that saw most of its expected surface unoccluded), best
     /// first, ready to warp, with their indices (none when no frame with
     /// depth sees it).
-    pub fn warp_sources(&self, target: &Frustum, count: usize, covisible: bool) -> Result<(Vec<u64>, Vec<WarpSource<'_>>), ApiError> {
+    pub fn warp_sources(&self, target: &Frustum, count: usize, covisible: bool) -> Result<(Vec<u64>, Vec<WarpSource<'_>>), EngineError> {
         let best = Policy::best_overlap_frames(count);
         let plan = if covisible {
             covisibility::select(&self.depth_memory, &best, target, &CoVisibility::default(), None, |id| self.depth_grids.get(&id))?.0
@@ -180,8 +180,8 @@ impl Session {
 
     /// The pose after `action`: the world's physics in a synthetic session,
     /// else the kinematic model.
-    pub fn motion(&self, action: &Action) -> Result<(Pose, Option<PlayerState>), ApiError> {
-        let last = self.frames.last().ok_or_else(|| ApiError::internal("session without frames"))?;
+    pub fn motion(&self, action: &Action) -> Result<(Pose, Option<PlayerState>), EngineError> {
+        let last = self.frames.last().ok_or_else(|| EngineError::internal("session without frames"))?;
         match (&self.world, last.player) {
             (Some(world), Some(player)) => {
                 let physics = world::agent::Physics { world };

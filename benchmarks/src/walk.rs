@@ -9,7 +9,7 @@ use std::sync::Barrier;
 use std::time::Instant;
 
 use anyhow::{Result, anyhow};
-use api::ApiError;
+use api::EngineError;
 use api::engine::Engine;
 use api::store::Store;
 use model::{Method, RuntimeOptions, Sampler};
@@ -61,8 +61,8 @@ fn action(walk: &Walk, i: usize) -> Action {
 /// One session's walk: each generated step's stage timings and total, and
 /// when its generated steps began and ended. `ready` holds every walk at
 /// the turn until all have explored, so the timed phases overlap.
-fn one_walk(engine: &Engine, policy: &serde_json::Value, sampler: &Sampler, seed: u64, walk: &Walk, ready: &Barrier) -> Result<Timed, ApiError> {
-    let explored = (|| -> Result<api::session::Session, ApiError> {
+fn one_walk(engine: &Engine, policy: &serde_json::Value, sampler: &Sampler, seed: u64, walk: &Walk, ready: &Barrier) -> Result<Timed, EngineError> {
+    let explored = (|| -> Result<api::session::Session, EngineError> {
         let mut s = engine.create_synthetic(policy.clone(), seed, None, None)?;
         for i in 0..walk.explore {
             engine.step_observed(&mut s, &action(walk, i))?;
@@ -91,11 +91,11 @@ struct Timed {
 
 /// `sessions` walks at once on threads sharing `engine`; `steps` generated
 /// steps in all, split evenly (at least 25 each).
-pub fn walk_row(engine: &Engine, policy: &serde_json::Value, sampler: &Sampler, sessions: usize, steps: usize, explore: usize) -> Result<WalkRow, ApiError> {
+pub fn walk_row(engine: &Engine, policy: &serde_json::Value, sampler: &Sampler, sessions: usize, steps: usize, explore: usize) -> Result<WalkRow, EngineError> {
     let back = steps.div_ceil(sessions).max(25);
     let walk = Walk { explore, back };
     let ready = Barrier::new(sessions);
-    let results: Vec<Result<Timed, ApiError>> = std::thread::scope(|scope| {
+    let results: Vec<Result<Timed, EngineError>> = std::thread::scope(|scope| {
         let ready = &ready;
         let workers: Vec<_> = (0..sessions).map(|k| scope.spawn(move || one_walk(engine, policy, sampler, 7 + k as u64, &walk, ready))).collect();
         workers.into_iter().map(|w| w.join().expect("a walk thread panicked")).collect()

@@ -72,9 +72,7 @@ pub async fn step(State(st): St, caller: Caller, id: Result<Path<u64>, PathRejec
     let id = session_id(id)?;
     let req: StepRequest = parse(&headers, body)?;
     validate_action(&req.action)?;
-    let Some(m) = &st.engine.model else {
-        return Err(ApiError::new(StatusCode::CONFLICT, "model", "this server runs without a model (memory only): use observe"));
-    };
+    let m = st.engine.model()?;
     if req.steps.is_some_and(|n| !(1..=1000).contains(&n)) {
         return Err(ApiError::bad("steps", "must be from 1 to 1000"));
     }
