@@ -71,8 +71,10 @@ def paired_interval(results, row, metric):
 
 def fmt(v, sign=""):
     """`mean [lo, hi]` of an interval `worldpack eval` computed, or a dash; `sign="+"` for differences."""
-    if not v:
+    if not v or v.get("mean") is None:
         return "—"
+    if v.get("lo") is None or v.get("hi") is None:
+        return f"{v['mean']:{sign}.2f}"
     return f"{v['mean']:{sign}.2f} [{v['lo']:{sign}.2f}, {v['hi']:{sign}.2f}]"
 
 
