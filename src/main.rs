@@ -36,7 +36,7 @@ enum Command {
     /// variant, the WorldPack weights on recency contexts, and the copy and reproject references.
     Probe(teacher_probe::Options),
     /// Speed against accuracy, stability under pose noise and where methods
-    /// fail (docs/results.md): the probe under many conditions, paired frame by frame.
+    /// fail (docs/cli.md; `./scripts/results.sh` with STUDY=1): the probe under many conditions, paired frame by frame.
     Study(condition_study::Options),
     /// LoopNav-style evaluation: observe each trajectory's exploration, roll out its return leg
     /// autoregressively under each policy with its own weights, and score PSNR and SSIM per frame.

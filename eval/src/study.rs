@@ -1,5 +1,5 @@
 //! The study behind `worldpack study`: speed against accuracy, stability under pose noise,
-//! and the places where methods fail (docs/results.md).
+//! and the places where methods fail (docs/cli.md; `./scripts/results.sh` with STUDY=1).
 //!
 //! Most numbers are the teacher-forced return-leg probe of `eval::probe`
 //! (docs/probe.md) run under a *condition*: the suite as it is, with another

@@ -1,6 +1,6 @@
 //! `worldpack study`: the flags, progress bars and printed tables of
 //! `eval::study` (speed against accuracy, stability under pose noise, and
-//! where methods fail; docs/results.md).
+//! where methods fail; docs/cli.md).
 
 use std::cell::RefCell;
 use std::path::PathBuf;
