@@ -189,10 +189,11 @@ def train(data: list[Path], run: Path, steps: int, batch: int, lr: float, minute
               "edge_weight": edge_weight, "edge_landed": edge_landed}
     if adversarial:
         config |= {"adversarial_weight": adversarial_weight, "adversarial_start": adversarial_start}
-        if step:
-            state = torch.load(ckpt, weights_only=False)
-            if state["config"] != config:
-                raise SystemExit(f"--run: {ckpt} was trained with {state['config']}, not {config}; use another run folder")
+    if step:
+        state = torch.load(ckpt, weights_only=False)
+        if state["config"] != config:
+            raise SystemExit(f"--run: {ckpt} was trained with {state['config']}, not {config}; use another run folder")
+        if adversarial:
             disc.load_state_dict(state["disc"])
             opt_d.load_state_dict(state["opt_d"])
 
