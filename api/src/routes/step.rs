@@ -81,6 +81,7 @@ pub async fn step(State(st): St, caller: Caller, id: Result<Path<u64>, PathRejec
     }
     let steps = req.steps.unwrap_or(st.config.steps);
     let sampler = Sampler::new(&m.manifest().diffusion, steps, st.config.method, 0.0)?;
+    let provider = Some(m.provider().to_string());
     let slot = slot(&st, id, &caller)?;
     let mut s = lock(&st, &slot).await?;
     if let Some(expected) = req.expected_index {
@@ -110,7 +111,7 @@ pub async fn step(State(st): St, caller: Caller, id: Result<Path<u64>, PathRejec
             source: if o.observed { crate::session::OBSERVED } else { crate::session::GENERATED }.into(),
             image_png: B64.encode(&o.png),
             steps: sampler.len(),
-            provider: st2.engine.model.as_ref().map(|m| m.provider().to_string()),
+            provider,
             selection: Selection { plan: PlanAnswer::of(&s.policy, &o.plan), layout: o.layout, exact_evaluations: o.exact_evaluations, warp_frames: o.warp_frames },
             timings_ms: StepTimings { select, warp, sample, decode, store, total: 0.0 },
             truth: o.truth.map(|t| TruthAnswer { psnr_db: t.psnr_db, ssim: t.ssim, image: format!("/v1/sessions/{}/frames/{}/truth", s.id, o.index) }),
