@@ -321,3 +321,50 @@ fn idle_sessions_expire(store: &Path) {
     assert_eq!((code, r["frames"].as_u64()), (200, Some(steps + 1)), "{r}");
     assert_eq!(s.get(&format!("/v1/sessions/{idle}")).0, 404);
 }
+
+/// The link to PostgreSQL is TLS when the URL asks for it. A database that
+/// takes TLS connections only serves a server that connects with
+/// `sslmode=verify-full` (a session made and stepped over it) and refuses
+/// one without TLS; `verify-full` refuses a database whose certificate names
+/// another host, which `verify-ca` (the chain only) and `require` take.
+#[test]
+fn the_database_link_is_tls_when_the_url_asks_and_checks_the_name() {
+    let url = |pg: &PgCluster, mode: &str| {
+        std::path::PathBuf::from(format!("postgres://postgres@127.0.0.1:{}/postgres?sslmode={mode}&sslrootcert={}", pg.port, pg.ca().display()))
+    };
+    let pg = PgCluster::start_tls("tls", "IP:127.0.0.1,DNS:localhost");
+    let s = Server::start(&url(&pg, "verify-full"), &[]);
+    let (code, c) = s.post("/v1/sessions", &json!({ "synthetic": { "seed": 3 } }));
+    assert_eq!(code, 201, "{c}");
+    let (code, r) = s.post(&format!("/v1/sessions/{}/step", c["session"]), &json!({ "action": { "forward": true } }));
+    assert_eq!((code, r["index"].as_u64()), (200, Some(1)), "{r}");
+    s.kill();
+    let plain = api::store::Store::open(&pg.url()).err().expect("a TLS-only database took a plain connection");
+    assert!(plain.to_string().contains("no encryption"), "{plain}");
+
+    let other = PgCluster::start_tls("tls-other", "DNS:db.elsewhere.example");
+    let refused = api::store::Store::open(&url(&other, "verify-full")).err().expect("verify-full took a certificate for another name");
+    assert!(refused.to_string().contains("certificate not valid for name"), "{refused}");
+    for mode in ["verify-ca", "require"] {
+        api::store::Store::open(&url(&other, mode)).unwrap_or_else(|e| panic!("{mode}: {e}"));
+    }
+}
+
+/// A database an earlier release made (the same tables with a session in
+/// them, its own `schema_version` table, no refinery history) is adopted by
+/// the refinery migrations as it is: the session stays and steps on.
+#[test]
+fn a_database_made_before_refinery_is_adopted_as_it_is() {
+    let pg = PgCluster::start("adopt");
+    let s = Server::start(&pg.url(), &[]);
+    let (_, c) = s.post("/v1/sessions", &json!({ "synthetic": { "seed": 3 } }));
+    s.kill();
+    let mut psql = PgCluster::as_owner(PgCluster::bin("psql"));
+    psql.args(["-h", "127.0.0.1", "-p", &pg.port.to_string(), "-U", "postgres", "-v", "ON_ERROR_STOP=1", "-c"]).arg(
+        "DROP TABLE refinery_schema_history; CREATE TABLE schema_version (version INT NOT NULL); INSERT INTO schema_version VALUES (1), (2);",
+    );
+    PgCluster::run(psql, "psql");
+    let s = Server::start(&pg.url(), &[]);
+    let (code, r) = s.post(&format!("/v1/sessions/{}/step", c["session"]), &json!({ "action": { "forward": true } }));
+    assert_eq!((code, r["index"].as_u64()), (200, Some(1)), "{r}");
+}

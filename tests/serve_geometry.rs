@@ -82,16 +82,28 @@ fn a_geometry_model_warps_the_best_observed_frame_with_depth_across_restarts() {
     assert_eq!(r["truth"]["psnr_db"].as_f64(), Some(100.0), "{r}");
 }
 
-/// `serve --covisible`: each step's plan and warp sources come from
-/// co-visibility over the observed frames' depth.
+/// A policy with `covisibility` (the default policy under `serve --covisible`):
+/// each step's plan and warp sources come from co-visibility over the observed
+/// frames' depth. A session's own policy decides, whatever the server's default.
 #[test]
 fn covisible_serving_chooses_warp_sources_among_the_observed_frames() {
     let store = temp_store("covisible");
     let model = concat!(env!("CARGO_MANIFEST_DIR"), "/fixtures/variants/worldpack_geometry");
     let s = Server::start(&store, &["--model", model, "--covisible"]);
-    let (code, created) = s.post("/v1/sessions", &json!({ "synthetic": { "seed": 3 } }));
-    assert_eq!(code, 201, "{created}");
-    let id = created["session"].as_u64().unwrap();
+    let session = |policy: Option<Value>| {
+        let (code, created) = s.post("/v1/sessions", &json!({ "synthetic": { "seed": 3 }, "policy": policy }));
+        assert_eq!(code, 201, "{created}");
+        created["session"].as_u64().unwrap()
+    };
+    // A session that names a policy without co-visibility selects by frustum overlap.
+    let plain = session(Some(json!({ "kind": "worldpack" })));
+    let (code, r) = s.post(&format!("/v1/sessions/{plain}/step"), &json!({ "action": { "forward": true } }));
+    assert!(code == 200 && r["selection"]["exact_evaluations"].as_u64() > Some(0), "{r}");
+    let (code, r) = s.post("/v1/sessions", &json!({ "synthetic": { "seed": 3 }, "policy": { "kind": "worldpack", "covisibility": { "cells": 0 } } }));
+    assert_eq!((code, r["error"]["field"].as_str()), (400, Some("policy.covisibility.cells")), "{r}");
+    let id = session(None);
+    let (_, info) = s.get(&format!("/v1/sessions/{id}"));
+    assert_eq!(info["policy"]["covisibility"]["cells"], 16, "the server's default policy, resolved: {info}");
     let step = |body: Value| s.post(&format!("/v1/sessions/{id}/step"), &body);
     for _ in 0..3 {
         let (code, r) = step(json!({ "action": { "forward": true }, "observe": true }));

@@ -177,7 +177,7 @@ fn plan_files_are_the_memory_crate_selection() {
     assert!(packed[..22].iter().all(|&i| i == -1), "frame 0 has no context");
     let policy = memory::Policy::preset(memory::PolicyKind::WorldPack);
     for t in (1..frames.len()).step_by(7) {
-        let plan = memory::select(&policy, &frames[t].frustum, &frames[..t]);
+        let plan = memory::select_by_brute_force(&policy, &frames[t].frustum, &frames[..t]);
         let want: Vec<i32> = plan.slots.iter().map(|s| s.frame.map_or(-1, |f| f.id as i32)).collect();
         assert_eq!(&packed[t * 22..(t + 1) * 22], &want[..], "worldpack row {t}");
     }

@@ -26,8 +26,6 @@ pub struct Engine {
     pub model: Option<Model>,
     /// Show a geometry model's warp wherever it lands (`Config::overlay_warp`).
     pub overlay_warp: bool,
-    /// Choose each step's plan and warp sources by co-visibility (`Config::covisible`).
-    pub covisible: bool,
     /// Gathers concurrent sessions' model calls into one (`Config::batch_window`); None: each step calls alone.
     pub batcher: Option<Batcher>,
     worlds: Mutex<HashMap<u64, Arc<World>>>,
@@ -61,7 +59,7 @@ pub struct TruthScore {
 
 impl Engine {
     pub fn new(store: Store, model: Option<Model>) -> Engine {
-        Engine { store, model, overlay_warp: false, covisible: false, batcher: None, worlds: Mutex::new(HashMap::new()) }
+        Engine { store, model, overlay_warp: false, batcher: None, worlds: Mutex::new(HashMap::new()) }
     }
 
     /// The synthetic world of `seed`, generated once and shared.
@@ -177,16 +175,12 @@ impl Engine {
         };
         let time = s.next_time();
         let frustum = s.frustum(pose)?;
-        let (plan, exact_evaluations) = if self.covisible {
-            (s.covisible_plan(&frustum)?, 0)
-        } else {
-            let (plan, stats) = s.memory.select(&s.policy, &frustum, s.last_plan.as_ref());
-            (plan, stats.overlap_evaluations)
-        };
+        let selection = s.plan(&s.policy, &frustum, s.last_plan.as_ref())?;
+        let (plan, exact_evaluations) = (selection.plan, selection.stats.overlap_evaluations);
         let select_ms = ms(t0);
         let action_values = action.to_vector();
         let (warp_frames, warp) = match &m.manifest().denoiser.warp {
-            Some(spec) => s.warp_sources(&frustum, spec.frames, self.covisible)?,
+            Some(spec) => s.warp_sources(&frustum, spec.frames)?,
             None => (Vec::new(), Vec::new()),
         };
         // Owned, so the call can run in a batch with other sessions' steps.

@@ -8,6 +8,7 @@ pub mod engine;
 pub mod error;
 pub mod openapi;
 pub mod postgres_store;
+pub mod postgres_tls;
 mod records;
 pub mod refusal;
 mod schemas;
@@ -62,9 +63,6 @@ pub struct Config {
     /// Geometry models: each generated frame shows the warp of its sources
     /// wherever it lands (the model fills only the holes), and is re-encoded.
     pub overlay_warp: bool,
-    /// Each step's plan and a geometry model's warp sources are chosen by
-    /// co-visibility from the observed frames' depth (memory::covisibility).
-    pub covisible: bool,
     /// Batching across sessions: concurrent steps' model calls gathered for
     /// up to this long into one call of at most `batch_max` items; None: off.
     pub batch_window: Option<Duration>,
@@ -99,7 +97,6 @@ impl Default for Config {
             max_inflight: 64,
             request_timeout: Duration::from_secs(120),
             overlay_warp: false,
-            covisible: false,
             batch_window: None,
             batch_max: 16,
             retain_idle: None,
@@ -152,7 +149,6 @@ impl Server {
         }
         let mut engine = Engine::new(store, model);
         engine.overlay_warp = config.overlay_warp;
-        engine.covisible = config.covisible;
         engine.batcher = config.batch_window.map(|w| batch::Batcher::new(w, config.batch_max));
         if !config.addr.ip().is_loopback() && !config.tokens.enabled() && !config.allow_unauthenticated {
             return Err(format!(

@@ -1,41 +1,71 @@
 //! The store on PostgreSQL (`--store postgres://…`): sessions and frames
-//! in tables of their own, under a versioned schema that migrates itself
-//! on connect. Every write is one committed transaction before it returns
-//! (PostgreSQL's default `synchronous_commit = on` flushes the WAL first).
+//! in tables of their own. Connections come from an r2d2 pool, checked as
+//! they are taken and opened again after the database restarted; the schema
+//! migrates on connect through refinery (`api/migrations`); the link is TLS
+//! when the URL asks for it (`postgres_tls`). Every write is one committed
+//! transaction before it returns (PostgreSQL's default `synchronous_commit =
+//! on` flushes the WAL first).
 
-use std::sync::Mutex;
 use std::time::Duration;
 
-use postgres::{Client, NoTls};
+use r2d2::{Pool, PooledConnection};
+use r2d2_postgres::PostgresConnectionManager;
+use tokio_postgres_rustls::MakeRustlsConnect;
 
+use crate::postgres_tls;
 use crate::records::{FrameMeta, FrameRecord, SessionRecord, StoreError, err};
 
-/// Schema versions in order; version `i + 1` is `MIGRATIONS[i]`. Append, never edit.
-const MIGRATIONS: &[&str] = &["
-    CREATE TABLE sessions (
-        id BIGSERIAL PRIMARY KEY,
-        record JSONB NOT NULL
-    );
-    CREATE TABLE frames (
-        session BIGINT NOT NULL REFERENCES sessions (id) ON DELETE CASCADE,
-        idx BIGINT NOT NULL,
-        meta JSONB NOT NULL,            -- pose (c2w), time, source, action, player
-        latent BYTEA NOT NULL,          -- f32 little-endian; empty without a model
-        png BYTEA NOT NULL,
-        depth_png16 BYTEA NOT NULL,     -- empty when none was given
-        PRIMARY KEY (session, idx)
-    );", "
-    -- When the session's newest frame was written: what retention reads.
-    ALTER TABLE sessions ADD COLUMN written TIMESTAMPTZ NOT NULL DEFAULT now();"];
+mod embedded {
+    refinery::embed_migrations!("migrations");
+}
 
 /// Connections per server: requests on different sessions (a step's commit,
 /// another's catch-up) need not wait for one another's round trips.
-const CONNECTIONS: usize = 4;
+const CONNECTIONS: u32 = 4;
+
+/// How long a request waits for a connection before it answers that the
+/// store is unavailable (the database down, or every connection busy).
+const CHECKOUT: Duration = Duration::from_secs(2);
+
+/// Held while migrating, so replicas that start together migrate one at a time.
+const MIGRATION_LOCK: i64 = 0x776f_726c_6470_6163; // "worldpac"
+
+type Manager = Explaining;
+
+/// r2d2_postgres's manager with errors that say what happened: the driver's
+/// own text is its kind alone ("db error"), the server's message is in its
+/// source, and the pool reports an error by its text.
+struct Explaining(PostgresConnectionManager<MakeRustlsConnect>);
+
+#[derive(Debug, thiserror::Error)]
+#[error("{0}")]
+struct Explained(String);
+
+/// An error and its sources, one after another.
+fn explained(e: &(dyn std::error::Error + 'static)) -> String {
+    std::iter::successors(Some(e), |e| e.source()).map(ToString::to_string).collect::<Vec<_>>().join(": ")
+}
+
+impl r2d2::ManageConnection for Explaining {
+    type Connection = postgres::Client;
+    type Error = Explained;
+
+    fn connect(&self) -> Result<postgres::Client, Explained> {
+        self.0.connect().map_err(|e| Explained(explained(&e)))
+    }
+    fn is_valid(&self, client: &mut postgres::Client) -> Result<(), Explained> {
+        self.0.is_valid(client).map_err(|e| Explained(explained(&e)))
+    }
+    fn has_broken(&self, client: &mut postgres::Client) -> bool {
+        self.0.has_broken(client)
+    }
+}
 
 pub struct PgStore {
-    url: String,
-    clients: Vec<Mutex<Client>>,
-    next: std::sync::atomic::AtomicUsize,
+    /// The URL fit to print (`redacted`): what errors name.
+    shown: String,
+    /// Some until drop (see `Drop`).
+    pool: Option<Pool<Manager>>,
 }
 
 /// A query's error: `Unavailable` when the connection is gone, else `Failed`.
@@ -44,9 +74,9 @@ fn db(e: postgres::Error) -> StoreError {
     let dropped = e.code().is_some_and(|c| c.code().starts_with("08") || c.code().starts_with("57"));
     // No server error at all: the socket itself failed.
     if e.is_closed() || dropped || e.as_db_error().is_none() {
-        StoreError::Unavailable(e.to_string())
+        StoreError::Unavailable(explained(&e))
     } else {
-        err(e)
+        err(explained(&e))
     }
 }
 
@@ -92,51 +122,42 @@ fn frame_of(row: &postgres::Row) -> Result<FrameRecord, StoreError> {
 
 impl Drop for PgStore {
     /// A `postgres::Client` closes on a Tokio runtime of its own, which cannot
-    /// start inside the server's: the clients are dropped on a plain thread.
+    /// start inside the server's: the pool is dropped on a plain thread.
     fn drop(&mut self) {
-        let clients = std::mem::take(&mut self.clients);
-        let _ = std::thread::spawn(move || drop(clients)).join();
+        let pool = self.pool.take();
+        let _ = std::thread::spawn(move || drop(pool)).join();
     }
 }
 
 impl PgStore {
-    /// Connects and brings the schema to the newest version.
+    /// Connects (TLS as the URL says), fills the pool and brings the schema to
+    /// the newest version.
     pub fn connect(url: &str) -> Result<PgStore, StoreError> {
-        let mut client = Client::connect(url, NoTls).map_err(|e| StoreError::Unavailable(format!("{}: {e}", redacted(url))))?;
-        let mut txn = client.transaction().map_err(db)?;
-        txn.batch_execute("CREATE TABLE IF NOT EXISTS schema_version (version INT NOT NULL); LOCK TABLE schema_version;").map_err(db)?;
-        let current: i32 = txn.query_one("SELECT coalesce(max(version), 0) FROM schema_version", &[]).map_err(db)?.get(0);
-        if current as usize > MIGRATIONS.len() {
-            return Err(err(format!("{}: schema version {current} is newer than this server's {}", redacted(url), MIGRATIONS.len())));
-        }
-        for (i, sql) in MIGRATIONS.iter().enumerate().skip(current as usize) {
-            txn.batch_execute(sql).map_err(db)?;
-            txn.execute("INSERT INTO schema_version (version) VALUES ($1)", &[&(i as i32 + 1)]).map_err(db)?;
-        }
-        txn.commit().map_err(db)?;
-        let mut clients = vec![Mutex::new(client)];
-        for _ in 1..CONNECTIONS {
-            clients.push(Mutex::new(Client::connect(url, NoTls).map_err(|e| StoreError::Unavailable(format!("{}: {e}", redacted(url))))?));
-        }
-        Ok(PgStore { url: url.to_string(), clients, next: Default::default() })
+        let shown = redacted(url);
+        let link = postgres_tls::link(url).map_err(|e| err(format!("{shown}: {e}")))?;
+        let pool = Pool::builder()
+            .max_size(CONNECTIONS)
+            .connection_timeout(CHECKOUT)
+            .build(Explaining(PostgresConnectionManager::new(link.config, link.tls)))
+            .map_err(|e| StoreError::Unavailable(format!("{shown}: {e}")))?;
+        let store = PgStore { shown, pool: Some(pool) };
+        store.migrate()?;
+        Ok(store)
     }
 
-    /// A free connection (else the next in turn), opened again when it was
-    /// lost (the database restarted): requests fail with `Unavailable` while
-    /// it is down and succeed again once it is back.
-    fn client(&self) -> Result<std::sync::MutexGuard<'_, Client>, StoreError> {
-        let free = self.clients.iter().find_map(|c| c.try_lock().ok());
-        let mut client = match free {
-            Some(client) => client,
-            None => {
-                let turn = self.next.fetch_add(1, std::sync::atomic::Ordering::Relaxed) % self.clients.len();
-                self.clients[turn].lock().unwrap_or_else(|poisoned| poisoned.into_inner())
-            }
-        };
-        if client.is_closed() {
-            *client = Client::connect(&self.url, NoTls).map_err(|e| StoreError::Unavailable(format!("{}: {e}", redacted(&self.url))))?;
-        }
-        Ok(client)
+    fn migrate(&self) -> Result<(), StoreError> {
+        let mut client = self.client()?;
+        client.batch_execute(&format!("SELECT pg_advisory_lock({MIGRATION_LOCK})")).map_err(db)?;
+        let migrated = embedded::migrations::runner().run(&mut *client);
+        client.batch_execute(&format!("SELECT pg_advisory_unlock({MIGRATION_LOCK})")).map_err(db)?;
+        migrated.map(drop).map_err(|e| err(format!("{}: migrating the schema: {e}", self.shown)))
+    }
+
+    /// A pooled connection, or `Unavailable` after [`CHECKOUT`] (while the
+    /// database is down: the pool opens new ones once it is back).
+    fn client(&self) -> Result<PooledConnection<Manager>, StoreError> {
+        let pool = self.pool.as_ref().expect("the pool lives until the store is dropped");
+        pool.get().map_err(|e| StoreError::Unavailable(format!("{}: {e}", self.shown)))
     }
 
     /// One round trip: whether the database answers now.

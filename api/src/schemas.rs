@@ -45,6 +45,9 @@ pub fn pose_ref() -> Ref {
 pub fn camera_ref() -> Ref {
     Ref::from_schema_name("Intrinsics")
 }
+pub fn optional_covisibility() -> RefOr<Schema> {
+    nullable("CoVisibility")
+}
 pub fn resolved_policy_ref() -> Ref {
     Ref::from_schema_name("Policy")
 }
@@ -67,7 +70,9 @@ fn one_key(key: &str, description: &str, value: Value) -> Value {
 
 /// (name, schema) of every type the routes take from other crates.
 pub(crate) fn foreign_schemas() -> Vec<(&'static str, Value)> {
+    use memory::CoVisibility;
     use memory::PolicyKind::*;
+    let d = CoVisibility::default();
     let kinds: Vec<&str> = [Baseline, NearestFramePacking, MemoryRetrieval, WorldPack, WorldMemGreedy].map(|k| k.name()).to_vec();
     vec![
         (
@@ -159,8 +164,10 @@ pub(crate) fn foreign_schemas() -> Vec<(&'static str, Value)> {
                     "estimator": { "type": "object", "description": "the overlap estimator (docs/api.md)" },
                     "weights": { "type": "object", "properties": { "overlap": { "type": "number" }, "recency": { "type": "number" } } },
                     "tiers": { "type": "array", "items": { "type": "object", "properties": { "slots": { "type": "integer" }, "rate": { "type": "integer" } } } },
+                    "covisibility": { "oneOf": [{ "$ref": "#/components/schemas/CoVisibility" }, { "type": "null" }],
+                                      "description": "re-rank the frustum candidates by co-visibility from the observed frames' depth (`{}`: the defaults)" },
                 },
-                "example": { "kind": "worldpack" },
+                "example": { "kind": "worldpack", "covisibility": {} },
             }),
         ),
         (
@@ -172,7 +179,29 @@ pub(crate) fn foreign_schemas() -> Vec<(&'static str, Value)> {
                 "properties": {
                     "kind": { "enum": kinds }, "ranking": {}, "packing": { "type": "object" }, "estimator": {},
                     "weights": { "type": "object" }, "keep_last": { "type": "boolean" }, "query": { "enum": ["current", "target"] },
+                    "covisibility": { "oneOf": [{ "$ref": "#/components/schemas/CoVisibility" }, { "type": "null" }] },
                 },
+            }),
+        ),
+        (
+            "CoVisibility",
+            json!({
+                "type": "object",
+                "description": "Occlusion-aware selection (memory::covisibility): the policy's frustum candidates ranked by the share of \
+                                the target view's expected surface each saw unoccluded, from the depth of the session's observed frames. \
+                                Each setting defaults when left out.",
+                "additionalProperties": false,
+                "properties": {
+                    "candidates": { "type": "integer", "minimum": 1, "maximum": CoVisibility::MAX_CANDIDATES,
+                                    "description": format!("frames kept from the frustum stage (default {})", d.candidates) },
+                    "sources": { "type": "integer", "minimum": 1, "maximum": CoVisibility::MAX_SOURCES,
+                                 "description": format!("frames with depth whose surfaces make the expected surface (default {})", d.sources) },
+                    "cells": { "type": "integer", "minimum": 1, "maximum": CoVisibility::MAX_CELLS,
+                               "description": format!("columns of the coarse depth grid (default {})", d.cells) },
+                    "tolerance": { "type": "number", "minimum": 0, "maximum": CoVisibility::MAX_TOLERANCE,
+                                   "description": format!("how much deeper than a frame's recorded surface a point may lie and still count as seen, relative (default {})", d.tolerance) },
+                },
+                "example": { "cells": 16 },
             }),
         ),
         ("Biome", json!({ "enum": ["plains", "forest", "desert", "snowy", "mountains", "badlands"] })),
@@ -194,7 +223,10 @@ mod tests {
         let k: memory::input::IntrinsicsInput = serde_json::from_value(schema("IntrinsicsInput")["example"].clone()).unwrap();
         k.resolve().unwrap();
         let _: motion::Action = serde_json::from_value(schema("Action")["example"].clone()).unwrap();
-        crate::session::policy_of(&schema("PolicySpec")["example"]).unwrap();
+        let policy = crate::session::policy_of(&schema("PolicySpec")["example"]).unwrap();
+        assert_eq!(policy.covisibility, Some(memory::CoVisibility::default()));
+        let c: memory::CoVisibility = serde_json::from_value(schema("CoVisibility")["example"].clone()).unwrap();
+        c.validated().unwrap();
         for biome in schema("Biome")["enum"].as_array().unwrap() {
             let _: world::Biome = serde_json::from_value(biome.clone()).unwrap();
         }

@@ -5,8 +5,8 @@ use std::borrow::Cow;
 use std::collections::HashMap;
 use std::sync::Arc;
 
-use memory::covisibility::{self, CoVisibility, DepthGrid};
-use memory::{ContextPlan, FrameMemory, Frustum, Intrinsics, MemoryFrame, Policy, PolicySpec, Pose};
+use memory::covisibility::{CoVisibility, DepthGrid};
+use memory::{ContextPlan, FrameMemory, Frustum, Intrinsics, MemoryFrame, Policy, PolicySpec, Pose, Selection};
 use model::WarpSource;
 use model::warp::coarse_depth;
 use world::World;
@@ -147,24 +147,27 @@ impl Session {
         Ok(Cow::Owned(self.depth_frames.iter().map(|(&id, d)| Ok((id, pool_depth(&d.depth_mm, k, cells)?))).collect::<Result<_, EngineError>>()?))
     }
 
-    /// The session policy's plan for `target` by co-visibility (default settings).
-    pub fn covisible_plan(&self, target: &Frustum) -> Result<ContextPlan, EngineError> {
-        let settings = CoVisibility::default();
-        let (plan, _) = covisibility::select(&self.memory, &self.policy, target, &settings, self.last_plan.as_ref(), |id| self.depth_grids.get(&id))?;
-        Ok(plan)
+    /// `policy`'s plan for `target` (memory::selection): co-visibility reads
+    /// the observed frames' depth at the policy's grid.
+    pub fn plan(&self, policy: &Policy, target: &Frustum, previous: Option<&ContextPlan>) -> Result<Selection, EngineError> {
+        self.plan_in(&self.memory, policy, target, previous)
+    }
+
+    fn plan_in(&self, memory: &FrameMemory, policy: &Policy, target: &Frustum, previous: Option<&ContextPlan>) -> Result<Selection, EngineError> {
+        let grids = match &policy.covisibility {
+            Some(c) => self.depth_grids(c.cells)?,
+            None => Cow::Owned(HashMap::new()),
+        };
+        Ok(memory.plan(policy, target, previous, |id| grids.get(&id))?)
     }
 
     /// The `count` observed frames with depth that overlap `target` most (or,
-    /// `covisible`, that saw most of its expected surface unoccluded), best
-    /// first, ready to warp, with their indices (none when no frame with
-    /// depth sees it).
-    pub fn warp_sources(&self, target: &Frustum, count: usize, covisible: bool) -> Result<(Vec<u64>, Vec<WarpSource<'_>>), EngineError> {
-        let best = Policy::best_overlap_frames(count);
-        let plan = if covisible {
-            covisibility::select(&self.depth_memory, &best, target, &CoVisibility::default(), None, |id| self.depth_grids.get(&id))?.0
-        } else {
-            self.depth_memory.select(&best, target, None).0
-        };
+    /// when the session's policy asks for co-visibility, that saw most of its
+    /// expected surface unoccluded), best first, ready to warp, with their
+    /// indices (none when no frame with depth sees it).
+    pub fn warp_sources(&self, target: &Frustum, count: usize) -> Result<(Vec<u64>, Vec<WarpSource<'_>>), EngineError> {
+        let best = Policy { covisibility: self.policy.covisibility, ..Policy::best_overlap_frames(count) };
+        let plan = self.plan_in(&self.depth_memory, &best, target, None)?.plan;
         Ok(plan
             .selected()
             .filter_map(|(_, f)| {

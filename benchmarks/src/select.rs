@@ -7,7 +7,7 @@ use std::time::Instant;
 use memory::covisibility::{self, CoVisibility, DepthGrid};
 use memory::overlap::MonteCarlo;
 use memory::workload::ground_depth;
-use memory::{ContextPlan, Estimator, FrameMemory, Frustum, Intrinsics, MemoryFrame, Policy, PolicyKind, select};
+use memory::{ContextPlan, Estimator, FrameMemory, Frustum, Intrinsics, MemoryFrame, Policy, PolicyKind, select_by_brute_force};
 use serde::Serialize;
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
@@ -117,11 +117,11 @@ pub fn run(workload: Workload, sizes: &[usize], queries: usize, progress: bool) 
                 previous = Some(plan);
                 if q < 3 || brute_start.elapsed().as_secs_f64() <= 4.0 {
                     let t = Instant::now();
-                    std::hint::black_box(select(&worldpack, target, &frames));
+                    std::hint::black_box(select_by_brute_force(&worldpack, target, &frames));
                     brute.push(t.elapsed().as_secs_f64() * 1e3);
                 }
                 let t = Instant::now();
-                let (plan, _) = covisibility::select(&memory, &worldpack, target, &settings, last_covisible.as_ref(), |id| depth.get(id as usize))
+                let (plan, _) = covisibility::rerank(&memory, &worldpack, target, &settings, last_covisible.as_ref(), |id| depth.get(id as usize))
                     .expect("valid settings");
                 covisible.push(t.elapsed().as_secs_f64() * 1e3);
                 last_covisible = Some(plan);
@@ -134,7 +134,7 @@ pub fn run(workload: Workload, sizes: &[usize], queries: usize, progress: bool) 
             for v in [&mut indexed, &mut brute, &mut paired_indexed, &mut covisible] {
                 v.sort_by(f64::total_cmp);
             }
-            let mc = timed(queries, 1, 4.0, |q| select(&monte_carlo, &targets[q], &frames));
+            let mc = timed(queries, 1, 4.0, |q| select_by_brute_force(&monte_carlo, &targets[q], &frames));
             let med = |v: &[f64]| percentile(v, 0.5);
             Row {
                 frames: n,

@@ -136,9 +136,9 @@ pub fn run(model_dir: &Path, runtime: RuntimeOptions, o: &Options, sessions: &[u
     let mut model = api::load_model(model_dir, None, runtime).map_err(anyhow::Error::msg)?;
     model.keep_sampled_latents(o.sampled_latents);
     let sampler = Sampler::new(&model.manifest().diffusion, o.steps, o.method, 0.0)?;
-    let mut engine = Engine::new(Store::open(&dir.join("store.redb"))?, Some(model));
-    engine.covisible = o.covisible;
-    let policy = json!({ "kind": "worldpack" });
+    let engine = Engine::new(Store::open(&dir.join("store.redb"))?, Some(model));
+    // Co-visibility is the sessions' policy's choice, as a client would make it.
+    let policy = json!({ "kind": "worldpack", "covisibility": o.covisible.then(memory::CoVisibility::default) });
     let rows = sessions
         .iter()
         .map(|&n| walk_row(&engine, &policy, &sampler, n, o.walk_steps, o.explore).map_err(|e| anyhow!("{}: {}", e.field, e.message)))

@@ -9,7 +9,7 @@
 use std::time::Instant;
 
 use memory::overlap::{MonteCarlo, ViewSamples};
-use memory::{AngleUnit, Frustum, Intrinsics, MemoryFrame, Policy, PolicyKind, Pose, Pose5, Pose5Convention, select};
+use memory::{AngleUnit, Frustum, Intrinsics, MemoryFrame, Policy, PolicyKind, Pose, Pose5, Pose5Convention, select_by_brute_force};
 
 /// One ABA trajectory: frames and the index where the return leg starts.
 pub struct Trajectory {
@@ -94,7 +94,7 @@ pub fn run(range: u32) -> Vec<Row> {
                 let memory = &traj.frames[..t];
                 let target = &traj.frames[t].frustum;
                 let start = Instant::now();
-                let plan = select(&policy, target, memory);
+                let plan = select_by_brute_force(&policy, target, memory);
                 times.push(start.elapsed().as_secs_f64() * 1e6);
                 let chosen: Vec<&MemoryFrame> = plan.selected().map(|(_, f)| &memory[f.id as usize]).collect();
                 coverage += covered_share(target, &chosen);

@@ -254,7 +254,8 @@ pub fn evaluate(s: &Settings, progress: &dyn Fn(Progress)) -> Result<Evaluation,
         let Some((Predictor::Model { model, policy, .. }, m)) = rows.iter().find(|(r, _)| &r.name == name).map(|(r, m)| (&r.predictor, *m)) else {
             return Err(setting("--covisible", format!("no model row called {name:?}")));
         };
-        let predictor = Predictor::CoVisible { model, policy: policy.clone(), sampler: sampler(model)?, settings: CoVisibility::default() };
+        let policy = Policy { covisibility: Some(CoVisibility::default()), ..policy.clone() };
+        let predictor = Predictor::Model { model, policy, sampler: sampler(model)? };
         rows.push((Row { name: format!("{name}_covisible"), predictor }, m));
     }
     for name in &s.plan_warps {

@@ -208,7 +208,6 @@ pub fn probe(o: &Settings, progress: &dyn Fn(Progress)) -> Result<Report, Progra
         let latents = match &row.predictor {
             Predictor::Model { model, .. }
             | Predictor::Composite { model, .. }
-            | Predictor::CoVisible { model, .. }
             | Predictor::PlanWarps { model, .. } => first_latents(model)?,
             _ => Rc::default(),
         };

@@ -6,7 +6,6 @@
 use std::collections::HashMap;
 use std::time::Instant;
 
-use memory::covisibility::CoVisibility;
 use memory::{ContextPlan, FrameMemory, Intrinsics, MemoryFrame, Policy};
 use model::generate::frame_to_tensor;
 use model::pack::ContextFrame;
@@ -31,7 +30,8 @@ pub enum ProbeError {
 /// How a row predicts frame `t` from frames `0..t`.
 pub enum Predictor<'a> {
     /// A model with a context policy; the policy's packing must match one of
-    /// the model's layouts.
+    /// the model's layouts. A policy with co-visibility (its plans and warp
+    /// sources chosen from the observed frames' depth) runs in rollouts only.
     Model { model: &'a Model, policy: Policy, sampler: Sampler },
     /// The stored frame of largest overlap with the target view, as is.
     Copy,
@@ -43,9 +43,6 @@ pub enum Predictor<'a> {
     /// The composite reference: that fused warp where it lands (no filling),
     /// a model's prediction in its holes.
     Composite { model: &'a Model, policy: Policy, sampler: Sampler },
-    /// A model whose plans and warp sources are chosen by co-visibility from
-    /// the observed frames' depth (memory::covisibility); rollouts only.
-    CoVisible { model: &'a Model, policy: Policy, sampler: Sampler, settings: CoVisibility },
     /// A geometry model that warps only observed frames its own plan selected,
     /// not the best-overlap frames of all memory: a policy without retrieval
     /// (nearest frame packing) stays without it; rollouts only.
@@ -68,7 +65,6 @@ impl<'a> Predictor<'a> {
         match self {
             Predictor::Model { model, .. }
             | Predictor::Composite { model, .. }
-            | Predictor::CoVisible { model, .. }
             | Predictor::PlanWarps { model, .. }
             | Predictor::Reconstruct { model } => Some(*model),
             Predictor::Copy | Predictor::Reproject | Predictor::ReprojectFused => None,
@@ -80,11 +76,23 @@ impl<'a> Predictor<'a> {
         match self {
             Predictor::Model { policy, .. }
             | Predictor::Composite { policy, .. }
-            | Predictor::CoVisible { policy, .. }
             | Predictor::PlanWarps { policy, .. } => policy.clone(),
             Predictor::Copy | Predictor::Reproject | Predictor::Reconstruct { .. } => Policy::best_overlap(),
             Predictor::ReprojectFused => Policy::best_overlap_frames(FUSED_FRAMES),
         }
+    }
+
+    /// Refuses, naming the row, what only rollouts (`worldpack eval`) run: co-visible,
+    /// plan-warp and reconstruction rows (teacher forcing has no observed depth to read).
+    fn teacher_forced(&self, row: &str) -> Result<(), ProbeError> {
+        let rollouts_only = match self {
+            Predictor::PlanWarps { .. } | Predictor::Reconstruct { .. } => true,
+            other => other.policy().covisibility.is_some(),
+        };
+        if rollouts_only {
+            return Err(ProbeError::Invalid(format!("{row}: co-visible, plan-warp and reconstruction rows run in rollouts (`worldpack eval`) only")));
+        }
+        Ok(())
     }
 }
 
@@ -324,6 +332,9 @@ pub fn probe_trajectory(
     latents_for: &mut dyn FnMut(&Model) -> Result<SharedLatents, ProbeError>,
     progress: &dyn Fn(usize),
 ) -> Result<TrajectoryScores, ProbeError> {
+    for row in rows {
+        row.predictor.teacher_forced(&row.name)?;
+    }
     let targets = traj.return_frames(settings.stride);
     // Each row's plans, then the validity mask's frames, then each geometry
     // row's warp sources (empty plans for other rows).
@@ -384,9 +395,7 @@ pub fn probe_trajectory(
                     progress(1);
                 }
             }
-            Predictor::CoVisible { .. } | Predictor::PlanWarps { .. } | Predictor::Reconstruct { .. } => {
-                return Err(ProbeError::Invalid(format!("{}: co-visible, plan-warp and reconstruction rows run in rollouts (`worldpack eval`) only", row.name)));
-            }
+            Predictor::PlanWarps { .. } | Predictor::Reconstruct { .. } => row.predictor.teacher_forced(&row.name)?,
         }
         scores.push(out);
     }
@@ -401,6 +410,7 @@ const WARM_UP_CALLS: usize = 3;
 /// Median wall time (ms) of one prediction, batch 1, selection through
 /// decoded frame, over `calls` return frames of `traj` after a few untimed ones.
 pub fn latency_ms(traj: &Trajectory, row: &Row, latents: &[Vec<f32>], calls: usize) -> Result<f64, ProbeError> {
+    row.predictor.teacher_forced(&row.name)?;
     let all = traj.return_frames(1);
     let warm_up: Vec<usize> = all.iter().copied().take(WARM_UP_CALLS.min(all.len().saturating_sub(1))).collect();
     let targets: Vec<usize> = all.iter().copied().skip(warm_up.len()).take(calls.max(1)).collect();
@@ -424,9 +434,7 @@ pub fn latency_ms(traj: &Trajectory, row: &Row, latents: &[Vec<f32>], calls: usi
                         std::hint::black_box(img);
                     })?;
                 }
-                Predictor::CoVisible { .. } | Predictor::PlanWarps { .. } | Predictor::Reconstruct { .. } => {
-                    return Err(ProbeError::Invalid(format!("{}: co-visible, plan-warp and reconstruction rows run in rollouts only", row.name)));
-                }
+                Predictor::PlanWarps { .. } | Predictor::Reconstruct { .. } => row.predictor.teacher_forced(&row.name)?,
                 reference => {
                     std::hint::black_box(reference_image(traj, reference, &plan, t));
                 }

@@ -7,7 +7,7 @@
 use std::cell::RefCell;
 use std::collections::HashMap;
 
-use memory::covisibility::{self, DepthGrid};
+use memory::covisibility::DepthGrid;
 use memory::{ContextPlan, FrameMemory, Frustum, MemoryFrame, Policy};
 use model::warp::{self, fused_reference, stands_at};
 use model::pack::ContextFrame;
@@ -232,8 +232,7 @@ pub fn rollout_as(
                 .unzip();
             Ok(RowOutput { scores, frames })
         }
-        Predictor::CoVisible { model, policy, sampler, .. }
-        | Predictor::Model { model, policy, sampler }
+        Predictor::Model { model, policy, sampler }
         | Predictor::Composite { model, policy, sampler }
         | Predictor::PlanWarps { model, policy, sampler } => {
             model.layout_for(&policy.packing)?; // before any work: a policy the model cannot take fails at once
@@ -242,10 +241,7 @@ pub fn rollout_as(
             if plan_warps && warp_policy.is_none() {
                 return Err(ProbeError::Invalid(format!("{}: a plan-warp row needs a model with the warp input", row.name)));
             }
-            let covisibility = match &row.predictor {
-                Predictor::CoVisible { settings, .. } => Some(settings.validated().map_err(|e| ProbeError::Invalid(e.to_string()))?),
-                _ => None,
-            };
+            let covisibility = policy.covisibility.map(|c| c.validated().map_err(|e| ProbeError::Invalid(e.to_string()))).transpose()?;
             // A composite overlays the fused warp of the best observed frames and re-encodes the result.
             let composite = matches!(row.predictor, Predictor::Composite { .. }).then(|| Policy::best_overlap_frames(FUSED_FRAMES));
             let warps = warp_policy.is_some() || composite.is_some();
@@ -289,15 +285,13 @@ pub fn rollout_as(
                         let r = &mut runs[i];
                         let target = &r.frusta[r.next];
                         let invalid = |e: memory::InputError| ProbeError::Invalid(e.to_string());
-                        let plan = match &covisibility {
-                            None => r.store.select(policy, target, r.previous.as_ref()).0,
-                            Some(c) => covisibility::select(&r.store, policy, target, c, r.previous.as_ref(), |id| r.depth.get(&id)).map_err(invalid)?.0,
-                        };
-                        let source = match (&warp_policy, &covisibility) {
-                            (None, _) => None,
-                            (Some(p), _) if plan_warps => Some(within_plan(&r.observed, &plan)?.select(p, target, None).0),
-                            (Some(p), None) => Some(r.observed.select(p, target, None).0),
-                            (Some(p), Some(c)) => Some(covisibility::select(&r.observed, p, target, c, None, |id| r.depth.get(&id)).map_err(invalid)?.0),
+                        let depth_of = |id| r.depth.get(&id);
+                        let plan = r.store.plan(policy, target, r.previous.as_ref(), depth_of).map_err(invalid)?.plan;
+                        // Warp sources are chosen as the plan is: by co-visibility when the policy asks.
+                        let source = match &warp_policy {
+                            None => None,
+                            Some(p) if plan_warps => Some(within_plan(&r.observed, &plan)?.select(p, target, None).0),
+                            Some(p) => Some(r.observed.plan(&Policy { covisibility, ..p.clone() }, target, None, depth_of).map_err(invalid)?.plan),
                         };
                         r.previous = Some(plan.clone());
                         plans.push(plan);

@@ -24,10 +24,11 @@
 //! without depth keep their frustum overlap.
 
 use glam::{DVec2, DVec3};
-use serde::{Deserialize, Serialize};
+use serde::Serialize;
 
 use crate::error::InputError;
 use crate::index::FrameMemory;
+pub use crate::policy::CoVisibility;
 use crate::policy::{ContextPlan, Packing, Policy, PolicyKind, Ranking, SelectedFrame, age, rank_order};
 use crate::{Estimator, Frustum, Intrinsics, Pose};
 
@@ -84,39 +85,6 @@ impl DepthGrid {
             let uv = DVec2::new((i % w) as f64, (i / w) as f64);
             pose.camera_to_world(self.intrinsics.unproject(uv, d as f64))
         })
-    }
-}
-
-/// The two stages' settings.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct CoVisibility {
-    /// Frames kept from the frustum stage.
-    pub candidates: usize,
-    /// Candidates whose depth makes the target's expected surface.
-    pub sources: usize,
-    /// Columns of the target's coarse grid.
-    pub cells: u32,
-    /// A surface point counts as seen when it lies at most this much deeper
-    /// than the frame's recorded surface there, relative.
-    pub tolerance: f64,
-}
-
-impl Default for CoVisibility {
-    fn default() -> Self {
-        CoVisibility { candidates: 32, sources: 3, cells: 16, tolerance: 0.1 }
-    }
-}
-
-impl CoVisibility {
-    pub fn validated(self) -> Result<Self, InputError> {
-        if self.candidates == 0 || self.sources == 0 || self.cells == 0 {
-            return Err(InputError::invalid("covisibility", "candidates, sources and cells must be at least 1"));
-        }
-        if !(self.tolerance.is_finite() && self.tolerance >= 0.0) {
-            return Err(InputError::invalid("covisibility.tolerance", format!("must be a finite number ≥ 0, got {}", self.tolerance)));
-        }
-        Ok(self)
     }
 }
 
@@ -181,12 +149,13 @@ pub struct CoVisibilityStats {
     pub surface_points: usize,
 }
 
-/// Selects by co-visibility (module docs): `policy` gives the packing and
+/// Re-ranks by co-visibility (module docs): `policy` gives the packing and
 /// the score weights; `depth_of` the coarse depth of a stored frame, if any.
+/// [`FrameMemory::plan`] calls it for a policy with `covisibility` set.
 /// Without any candidate depth this is `policy`'s own frustum-score ranking.
 /// `previous` (the last plan for a nearby target) only speeds the first stage up.
 /// The policy's `keep_last` pin is not applied: every slot is ranked by score.
-pub fn select<'a>(
+pub fn rerank<'a>(
     memory: &FrameMemory,
     policy: &Policy,
     target: &Frustum,
@@ -206,6 +175,7 @@ pub fn select<'a>(
         weights: policy.weights,
         keep_last: false,
         query: policy.query,
+        covisibility: None,
     };
     let (first, _) = memory.select(&stage1, target, previous);
     let candidates: Vec<SelectedFrame> = first.selected().map(|(_, f)| *f).collect();
@@ -304,7 +274,12 @@ mod tests {
         let frustum_first = order(&memory.select(&Policy::best_overlap_frames(3), &target, None).0);
         assert_eq!(frustum_first, [newest, a, b], "frustum overlap ranks the frame behind the wall above B");
 
-        let (plan, stats) = select(&memory, &policy, &target, &CoVisibility::default(), None, |id| depth.get(&id)).unwrap();
+        // The policy without co-visibility plans as the index does; with it, the plan re-ranks.
+        let frustum_plan = memory.plan(&policy, &target, None, |id| depth.get(&id)).unwrap();
+        assert_eq!((frustum_plan.plan, frustum_plan.covisibility), (memory.select(&policy, &target, None).0, None));
+        let policy = Policy { covisibility: Some(CoVisibility::default()), ..policy };
+        let chosen = memory.plan(&policy, &target, None, |id| depth.get(&id)).unwrap();
+        let (plan, stats) = (chosen.plan, chosen.covisibility.expect("co-visibility's stats"));
         assert_eq!(order(&plan), [newest, b, a], "co-visibility sees through the trick");
         assert_eq!((stats.candidates, stats.with_depth), (3, 3));
         assert!(stats.surface_points > 100, "{stats:?}");
@@ -312,7 +287,7 @@ mod tests {
         assert!(seen[&newest] > 0.9 && seen[&b] > 0.2 && seen[&a] < 0.05, "co-visibility {seen:?}");
 
         // Without depth the stage falls back to frustum overlap against the target.
-        let (plan, stats) = select(&memory, &policy, &target, &CoVisibility::default(), None, |_| None).unwrap();
+        let (plan, stats) = rerank(&memory, &policy, &target, &CoVisibility::default(), None, |_| None).unwrap();
         assert_eq!((stats.with_depth, stats.surface_points), (0, 0));
         assert_eq!(order(&plan)[1], a);
     }
@@ -329,5 +304,7 @@ mod tests {
         assert!(err.contains("cells"), "{err}");
         let bad = CoVisibility { tolerance: f64::NAN, ..CoVisibility::default() };
         assert!(bad.validated().unwrap_err().to_string().contains("covisibility.tolerance"));
+        let bad = CoVisibility { candidates: CoVisibility::MAX_CANDIDATES + 1, ..CoVisibility::default() };
+        assert!(bad.validated().unwrap_err().to_string().contains("covisibility.candidates"));
     }
 }

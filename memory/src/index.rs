@@ -44,7 +44,7 @@ use rstar::{AABB, RTree, RTreeObject};
 use crate::error::InputError;
 use crate::frustum::{Aabb, Frustum, Plane};
 use crate::overlap::{Estimator, Need, clipped_volume};
-use crate::policy::{ContextPlan, MemoryFrame, Policy, Ranking, SelectedFrame, age, rank_order, select_among};
+use crate::policy::{ContextPlan, MemoryFrame, Policy, Ranking, SelectedFrame, age, rank_order, select_by_brute_force_among};
 
 /// A group's box in the R-tree.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -262,14 +262,14 @@ impl FrameMemory {
                 // The newest n frames are all that recency can pick.
                 let newest: Vec<&MemoryFrame> = self.by_recency.iter().rev().take(n).map(|&s| &self.frames[s]).collect();
                 let stats = SelectionStats { overlap_evaluations: newest.len(), ..SelectionStats::default() };
-                (select_among(policy, target, &newest), stats)
+                (select_by_brute_force_among(policy, target, &newest), stats)
             }
             Ranking::GreedyCoverage => {
                 // Coverage changes every round; scored by brute force.
                 let all: Vec<&MemoryFrame> = self.frames.iter().collect();
                 let stats =
                     SelectionStats { box_candidates: all.len(), overlap_evaluations: all.len() * n, ..SelectionStats::default() };
-                (select_among(policy, target, &all), stats)
+                (select_by_brute_force_among(policy, target, &all), stats)
             }
         }
     }

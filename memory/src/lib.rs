@@ -15,6 +15,8 @@
 //!   the share of the target's expected surface each frame saw unoccluded).
 //! - [`index`]: [`FrameMemory`], the R-tree-indexed store whose selection
 //!   equals brute force but skips frames that provably cannot enter.
+//! - [`selection`]: [`FrameMemory::plan`], the one way a policy's plan is chosen
+//!   (the index, then co-visibility when the policy carries it).
 
 pub mod camera;
 pub mod covisibility;
@@ -26,6 +28,7 @@ pub mod overlap;
 pub mod policy;
 pub mod pose;
 pub mod rng;
+pub mod selection;
 pub mod stability;
 pub mod workload;
 pub mod variants;
@@ -35,6 +38,7 @@ pub use error::InputError;
 pub use frustum::Frustum;
 pub use index::{FrameMemory, SelectionStats};
 pub use overlap::Estimator;
-pub use policy::{ContextPlan, LatentGrid, MemoryFrame, Packing, Policy, PolicyKind, PolicySpec, Query, Ranking, ScoreWeights, select};
+pub use policy::{ContextPlan, LatentGrid, MemoryFrame, Packing, CoVisibility, Policy, PolicyKind, PolicySpec, Query, Ranking, ScoreWeights, select_by_brute_force};
+pub use selection::Selection;
 pub use pose::{AngleUnit, Pose, Pose5, Pose5Convention};
 pub use variants::{VARIANTS, Variant, short_label, variant};

@@ -175,6 +175,54 @@ pub enum Query {
     Target,
 }
 
+/// Co-visibility's settings (`crate::covisibility`): a policy that carries them
+/// re-ranks its frustum candidates by what each frame saw of the target's surface.
+/// Fields left out of a request take the defaults.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct CoVisibility {
+    /// Frames kept from the frustum stage.
+    pub candidates: usize,
+    /// Candidates whose depth makes the target's expected surface.
+    pub sources: usize,
+    /// Columns of the target's coarse grid.
+    pub cells: u32,
+    /// A surface point counts as seen when it lies at most this much deeper
+    /// than the frame's recorded surface there, relative.
+    pub tolerance: f64,
+}
+
+impl Default for CoVisibility {
+    fn default() -> Self {
+        CoVisibility { candidates: 32, sources: 3, cells: 16, tolerance: 0.1 }
+    }
+}
+
+impl CoVisibility {
+    /// The largest settings accepted: beyond them a selection's cost grows with no gain.
+    pub const MAX_CANDIDATES: usize = 4096;
+    pub const MAX_SOURCES: usize = 64;
+    pub const MAX_CELLS: u32 = 256;
+    pub const MAX_TOLERANCE: f64 = 10.0;
+
+    pub fn validated(self) -> Result<Self, InputError> {
+        let count = |field: &str, v: usize, max: usize| {
+            if (1..=max).contains(&v) {
+                Ok(())
+            } else {
+                Err(InputError::invalid(&format!("covisibility.{field}"), format!("must be from 1 to {max}, got {v}")))
+            }
+        };
+        count("candidates", self.candidates, Self::MAX_CANDIDATES)?;
+        count("sources", self.sources, Self::MAX_SOURCES)?;
+        count("cells", self.cells as usize, Self::MAX_CELLS as usize)?;
+        if !(0.0..=Self::MAX_TOLERANCE).contains(&self.tolerance) {
+            return Err(InputError::invalid("covisibility.tolerance", format!("must be from 0 to {}, got {}", Self::MAX_TOLERANCE, self.tolerance)));
+        }
+        Ok(self)
+    }
+}
+
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct Policy {
     pub kind: PolicyKind,
@@ -185,6 +233,9 @@ pub struct Policy {
     /// Always put the most recent frame in the first slot.
     pub keep_last: bool,
     pub query: Query,
+    /// Re-rank the frustum stage's candidates by co-visibility from depth
+    /// (`crate::covisibility`); None: frustum overlap alone.
+    pub covisibility: Option<CoVisibility>,
 }
 
 impl Policy {
@@ -203,7 +254,7 @@ impl Policy {
             PolicyKind::MemoryRetrieval | PolicyKind::WorldPack => Query::Current,
             PolicyKind::Baseline | PolicyKind::NearestFramePacking | PolicyKind::WorldMemGreedy => Query::Target,
         };
-        Policy { kind, ranking, packing, estimator, weights: ScoreWeights::default(), keep_last: false, query }
+        Policy { kind, ranking, packing, estimator, weights: ScoreWeights::default(), keep_last: false, query, covisibility: None }
     }
 
     /// Only overlap with the target view counts, one frame: the frame the
@@ -222,6 +273,7 @@ impl Policy {
             weights: ScoreWeights { overlap: 1.0, recency: 0.0 },
             keep_last: false,
             query: Query::Target,
+            covisibility: None,
         }
     }
 
@@ -250,6 +302,8 @@ pub struct PolicySpec {
     pub tiers: Option<Vec<Tier>>,
     #[serde(default)]
     pub query: Option<Query>,
+    #[serde(default)]
+    pub covisibility: Option<CoVisibility>,
 }
 
 impl PolicySpec {
@@ -269,6 +323,9 @@ impl PolicySpec {
         }
         if let Some(q) = self.query {
             p.query = q;
+        }
+        if let Some(c) = self.covisibility {
+            p.covisibility = Some(c.validated()?);
         }
         Ok(p)
     }
@@ -358,13 +415,16 @@ impl LatentGrid {
 /// the frustum of the frame being generated; the policy's [`Query`] decides
 /// whether frames are scored against it or against the newest stored frame.
 /// This is the reference that the indexed selection in [`crate::index`] must match.
-pub fn select(policy: &Policy, target: &Frustum, frames: &[MemoryFrame]) -> ContextPlan {
+/// It ranks by frustum overlap alone (a policy's `covisibility` is [`FrameMemory::plan`]'s).
+///
+/// [`FrameMemory::plan`]: crate::FrameMemory::plan
+pub fn select_by_brute_force(policy: &Policy, target: &Frustum, frames: &[MemoryFrame]) -> ContextPlan {
     let refs: Vec<&MemoryFrame> = frames.iter().collect();
-    select_among(policy, target, &refs)
+    select_by_brute_force_among(policy, target, &refs)
 }
 
-/// [`select`] over borrowed frames.
-pub fn select_among(policy: &Policy, target: &Frustum, frames: &[&MemoryFrame]) -> ContextPlan {
+/// [`select_by_brute_force`] over borrowed frames.
+pub fn select_by_brute_force_among(policy: &Policy, target: &Frustum, frames: &[&MemoryFrame]) -> ContextPlan {
     let Some(t_now) = frames.iter().map(|f| f.time).max() else {
         return ContextPlan::from_ranked(&policy.packing, &[]);
     };

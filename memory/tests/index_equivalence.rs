@@ -4,7 +4,7 @@
 use glam::{DMat3, DVec3, EulerRot};
 use memory::policy::PolicySpec;
 use memory::rng::SplitMix64;
-use memory::{ContextPlan, FrameMemory, Frustum, Intrinsics, MemoryFrame, Policy, PolicyKind, Pose, select};
+use memory::{ContextPlan, FrameMemory, Frustum, Intrinsics, MemoryFrame, Policy, PolicyKind, Pose, select_by_brute_force};
 
 fn frustum(pos: DVec3, yaw: f64, pitch: f64) -> Frustum {
     let k = Intrinsics::from_fov(70.0, None, 64, 64).unwrap();
@@ -74,7 +74,7 @@ fn check(walk: bool, seed: u64) {
         let (p, y, pi) = if t + 1 < poses.len() { poses[t + 1] } else { poses[0] };
         let target = frustum(p, y, pi);
         for (i, policy) in policies.iter().enumerate() {
-            let want = select(policy, &target, &frames[..=t]);
+            let want = select_by_brute_force(policy, &target, &frames[..=t]);
             let (got, _) = memory.select(policy, &target, previous[i].as_ref());
             assert_eq!(got, want, "{:?} keep_last={} at t={t} (walk={walk})", policy.kind, policy.keep_last);
             // A stale or unrelated warm start must not change the answer either.
@@ -126,7 +126,7 @@ fn a_long_walk_touches_only_nearby_frames() {
     let (plan, stats) = memory.select(&Policy::preset(PolicyKind::WorldPack), &target, None);
     assert!(stats.box_candidates < 100, "{stats:?}");
     assert!(stats.overlap_evaluations <= stats.box_candidates);
-    let brute = select(&Policy::preset(PolicyKind::WorldPack), &target, memory.frames());
+    let brute = select_by_brute_force(&Policy::preset(PolicyKind::WorldPack), &target, memory.frames());
     assert_eq!(plan, brute);
 }
 
@@ -144,7 +144,7 @@ fn pose_space_bounds_prune_a_dense_loop() {
     let target = frustum(p, y, pi);
     let policy = Policy::preset(PolicyKind::WorldPack);
     let (plan, stats) = memory.select(&policy, &target, None);
-    assert_eq!(plan, select(&policy, &target, memory.frames()));
+    assert_eq!(plan, select_by_brute_force(&policy, &target, memory.frames()));
     assert!(stats.box_candidates > 1000, "{stats:?}");
     // Measured: 1,165 of 2,084 candidates evaluated, 293 group bounds. The
     // recency bound alone evaluates all of them on loops.

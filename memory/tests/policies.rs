@@ -4,7 +4,7 @@ use memory::overlap::exact_overlap;
 use memory::policy::{PolicySpec, Tier};
 use memory::{
     AngleUnit, Frustum, Intrinsics, LatentGrid, MemoryFrame, Packing, Policy, PolicyKind, Pose, Pose5, Pose5Convention, Query,
-    select,
+    select_by_brute_force,
 };
 
 const ALL: [PolicyKind; 5] = [
@@ -55,7 +55,7 @@ fn rates(plan: &memory::ContextPlan) -> Vec<u32> {
 #[test]
 fn empty_memory_gives_an_empty_plan_for_every_policy() {
     for kind in ALL {
-        let plan = select(&Policy::preset(kind), &view(0.0, 0.0, 0.0), &[]);
+        let plan = select_by_brute_force(&Policy::preset(kind), &view(0.0, 0.0, 0.0), &[]);
         assert!(plan.is_empty(), "{kind:?}");
         assert_eq!(plan.slots.len(), Policy::preset(kind).packing.slots());
     }
@@ -65,10 +65,10 @@ fn empty_memory_gives_an_empty_plan_for_every_policy() {
 fn baseline_and_nfp_follow_recency() {
     let frames = out_and_back();
     let target = view(0.0, 0.0, 0.0);
-    let baseline = select(&Policy::preset(PolicyKind::Baseline), &target, &frames);
+    let baseline = select_by_brute_force(&Policy::preset(PolicyKind::Baseline), &target, &frames);
     assert_eq!(ids(&baseline), vec![79, 78, 77, 76]);
     assert_eq!(rates(&baseline), vec![1; 4]);
-    let nfp = select(&Policy::preset(PolicyKind::NearestFramePacking), &target, &frames);
+    let nfp = select_by_brute_force(&Policy::preset(PolicyKind::NearestFramePacking), &target, &frames);
     assert_eq!(ids(&nfp), (58..80).rev().collect::<Vec<_>>());
     let expected_rates: Vec<u32> = [vec![1; 2], vec![4; 4], vec![16; 16]].concat();
     assert_eq!(rates(&nfp), expected_rates);
@@ -79,9 +79,9 @@ fn retrieval_policies_bring_back_the_frames_that_saw_the_target_view() {
     let frames = out_and_back();
     // Back at the start, facing south again: the outbound frames near z = 0 saw this.
     let target = view(0.0, 0.0, 0.0);
-    let mr = select(&looking_ahead(PolicyKind::MemoryRetrieval), &target, &frames);
+    let mr = select_by_brute_force(&looking_ahead(PolicyKind::MemoryRetrieval), &target, &frames);
     assert_eq!(ids(&mr), vec![0, 1, 2, 3], "{mr:?}");
-    let wp = select(&looking_ahead(PolicyKind::WorldPack), &target, &frames);
+    let wp = select_by_brute_force(&looking_ahead(PolicyKind::WorldPack), &target, &frames);
     assert_eq!(&ids(&wp)[..4], &[0, 1, 2, 3]);
     assert_eq!(wp.slots.len(), 22);
     // The newest frame stands on the target's spot facing the other way: it
@@ -108,7 +108,7 @@ fn algorithm_1_scores_against_the_current_view() {
     for kind in [PolicyKind::MemoryRetrieval, PolicyKind::WorldPack] {
         let policy = Policy::preset(kind);
         assert_eq!(policy.query, Query::Current, "{kind:?}");
-        let plan = select(&policy, &target, &frames);
+        let plan = select_by_brute_force(&policy, &target, &frames);
         let first = plan.selected().next().unwrap().1;
         assert_eq!((first.id, first.overlap, first.score), (79, 1.0, 1.0), "{kind:?}");
         // Next: the way back's frames (facing north as frame 79 does), not the outbound start.
@@ -117,7 +117,7 @@ fn algorithm_1_scores_against_the_current_view() {
     // The same query through a spec, and the look-ahead query as an override.
     let spec = |json: &str| serde_json::from_str::<PolicySpec>(json).unwrap().into_policy().unwrap();
     assert_eq!(spec(r#"{"kind": "worldpack"}"#).query, Query::Current);
-    assert_eq!(ids(&select(&spec(r#"{"kind": "worldpack", "query": "target"}"#), &target, &frames))[0], 0);
+    assert_eq!(ids(&select_by_brute_force(&spec(r#"{"kind": "worldpack", "query": "target"}"#), &target, &frames))[0], 0);
 }
 
 #[test]
@@ -129,7 +129,7 @@ fn ties_go_to_the_more_recent_frame_then_the_larger_id() {
         MemoryFrame { id: 12, time: 7, frustum: same() },
         MemoryFrame { id: 13, time: 1, frustum: same() },
     ];
-    let plan = select(&Policy::preset(PolicyKind::MemoryRetrieval), &same(), &frames);
+    let plan = select_by_brute_force(&Policy::preset(PolicyKind::MemoryRetrieval), &same(), &frames);
     assert_eq!(ids(&plan), vec![12, 11, 10, 13]);
 }
 
@@ -139,7 +139,7 @@ fn keep_last_pins_the_most_recent_frame_first() {
     let target = view(0.0, 0.0, 0.0);
     let mut policy = looking_ahead(PolicyKind::WorldPack);
     policy.keep_last = true;
-    let plan = select(&policy, &target, &frames);
+    let plan = select_by_brute_force(&policy, &target, &frames);
     assert_eq!(ids(&plan)[0], 79);
     assert_eq!(&ids(&plan)[1..4], &[0, 1, 2]);
     assert_eq!(ids(&plan).iter().filter(|&&i| i == 79).count(), 1);
@@ -156,22 +156,22 @@ fn greedy_coverage_prefers_a_new_region_over_a_duplicate() {
     let target = view(0.0, 0.0, 0.0);
     let mut greedy = Policy::preset(PolicyKind::WorldMemGreedy);
     greedy.packing = Packing::uncompressed(2);
-    let picked = ids(&select(&greedy, &target, &frames));
+    let picked = ids(&select_by_brute_force(&greedy, &target, &frames));
     assert!(picked.contains(&2) && picked.len() == 2, "{picked:?}");
     // Plain score ranking over the same views happily takes a duplicate; make
     // the duplicates clearly better-scoring by tilting the target toward them.
     let mut by_score = looking_ahead(PolicyKind::MemoryRetrieval);
     by_score.packing = Packing::uncompressed(2);
     let tilted = view(0.0, 0.0, 30.0);
-    assert_eq!(ids(&select(&by_score, &tilted, &frames)), vec![1, 0]);
-    assert!(ids(&select(&greedy, &tilted, &frames)).contains(&2));
+    assert_eq!(ids(&select_by_brute_force(&by_score, &tilted, &frames)), vec![1, 0]);
+    assert!(ids(&select_by_brute_force(&greedy, &tilted, &frames)).contains(&2));
 }
 
 #[test]
 fn scores_stay_finite_when_every_frame_is_from_time_zero() {
     let frames = vec![MemoryFrame { id: 7, time: 0, frustum: view(0.0, 0.0, 0.0) }];
     for kind in ALL {
-        let plan = select(&Policy::preset(kind), &view(0.0, 0.0, 0.0), &frames);
+        let plan = select_by_brute_force(&Policy::preset(kind), &view(0.0, 0.0, 0.0), &frames);
         let (_, f) = plan.selected().next().unwrap();
         assert!(f.score.is_finite() && f.overlap.is_finite(), "{kind:?}: {f:?}");
     }
@@ -181,7 +181,7 @@ fn scores_stay_finite_when_every_frame_is_from_time_zero() {
 fn packed_context_costs_as_many_tokens_as_the_baseline_when_sizes_divide() {
     let frames = out_and_back();
     let target = view(0.0, 0.0, 0.0);
-    let full = |kind| select(&Policy::preset(kind), &target, &frames);
+    let full = |kind| select_by_brute_force(&Policy::preset(kind), &target, &frames);
     // 32×32 latent, patch 2: every kernel divides, so 2·256 + 4·64 + 16·16 = 4·256.
     let even = LatentGrid { height: 32, width: 32, patch: 2 };
     assert_eq!(full(PolicyKind::WorldPack).tokens(&even), (1024, 1024));
@@ -191,7 +191,7 @@ fn packed_context_costs_as_many_tokens_as_the_baseline_when_sizes_divide() {
     assert_eq!(full(PolicyKind::WorldPack).tokens(&sd), (844, 844));
     assert_eq!(full(PolicyKind::Baseline).tokens(&sd), (784, 784));
     // A half-filled plan reports what it uses and what the tensor holds.
-    let plan = select(&Policy::preset(PolicyKind::WorldPack), &target, &frames[..3]);
+    let plan = select_by_brute_force(&Policy::preset(PolicyKind::WorldPack), &target, &frames[..3]);
     assert_eq!(plan.tokens(&sd), (2 * 196 + 49, 844));
     // Huge shapes count in 64 bits instead of overflowing.
     let huge = LatentGrid { height: u32::MAX, width: u32::MAX, patch: u32::MAX };
@@ -226,7 +226,7 @@ fn each_estimator_can_drive_worldpack() {
     let first_pick = |estimator: &str| {
         let json = format!(r#"{{"kind": "worldpack", "query": "target", "estimator": {estimator}}}"#);
         let policy = serde_json::from_str::<PolicySpec>(&json).unwrap().into_policy().unwrap();
-        ids(&select(&policy, &target, &frames))[0]
+        ids(&select_by_brute_force(&policy, &target, &frames))[0]
     };
     // Frustum estimators rank the frame taken at the target's exact pose first.
     assert_eq!(first_pick(r#"{"kind": "exact"}"#), 0);
@@ -242,7 +242,7 @@ fn each_estimator_can_drive_worldpack() {
 fn frames_far_beyond_the_frustum_score_zero_overlap() {
     let mut frames = out_and_back();
     frames.push(MemoryFrame { id: 999, time: 80, frustum: view(5000.0, 0.0, 0.0) });
-    let plan = select(&Policy::preset(PolicyKind::Baseline), &view(0.0, 0.0, 0.0), &frames);
+    let plan = select_by_brute_force(&Policy::preset(PolicyKind::Baseline), &view(0.0, 0.0, 0.0), &frames);
     let first = plan.selected().next().unwrap().1;
     assert_eq!((first.id, first.overlap), (999, 0.0));
 }

@@ -119,7 +119,11 @@ fn from_rollouts(o: &Options, list: &[eval::suite::Entry], bare: &model::Model, 
     let latents = trajs.iter().map(|t| encode_all(&served, t)).collect::<Result<Vec<_>, _>>()?;
     let row = Row {
         name: "rollout".into(),
-        predictor: Predictor::CoVisible { model: &served, policy: served.trained_policy(), sampler: sampler.clone(), settings: CoVisibility::default() },
+        predictor: Predictor::Model {
+            model: &served,
+            policy: memory::Policy { covisibility: Some(CoVisibility::default()), ..served.trained_policy() },
+            sampler: sampler.clone(),
+        },
     };
     let capture = Capture { bare, stride: o.stride, examples: Default::default() };
     let scorer = Scorer { capture: Some(&capture), ..Default::default() };

@@ -13,7 +13,7 @@ use memory::overlap::exact_overlap;
 use memory::policy::{LatentGrid, PolicySpec};
 use memory::input::{IntrinsicsInput, PoseInput};
 use memory::covisibility::{self, CoVisibility, DepthGrid};
-use memory::{AngleUnit, Estimator, FrameMemory, Frustum, InputError, MemoryFrame, Pose, Pose5Convention, select};
+use memory::{AngleUnit, Estimator, FrameMemory, Frustum, InputError, MemoryFrame, Pose, Pose5Convention, select_by_brute_force};
 use serde::Deserialize;
 use serde_json::{Value, json};
 
@@ -165,13 +165,13 @@ pub fn answer(request: &Request) -> Result<Value, InputError> {
                 stored.push(MemoryFrame { id: f.id, time: f.time, frustum });
             }
             let (plan, covisibility) = match settings {
-                None => (select(&policy, &target, &stored), None),
+                None => (select_by_brute_force(&policy, &target, &stored), None),
                 Some(c) => {
                     let mut memory = FrameMemory::new();
                     for f in stored {
                         memory.insert(f).expect("ids checked unique above");
                     }
-                    let (plan, stats) = covisibility::select(&memory, &policy, &target, &c, None, |id| depth.get(&id))?;
+                    let (plan, stats) = covisibility::rerank(&memory, &policy, &target, &c, None, |id| depth.get(&id))?;
                     (plan, Some(stats))
                 }
             };

@@ -50,8 +50,9 @@ pub struct Args {
     /// lands, and the model fills only the holes (the composite; docs/geometry.md).
     #[arg(long)]
     pub overlay_warp: bool,
-    /// Choose each step's plan and a geometry model's warp sources by co-visibility from the
-    /// observed frames' depth instead of frustum overlap (docs/geometry.md).
+    /// Sessions that do not name a policy choose each step's plan and a geometry model's warp
+    /// sources by co-visibility from the observed frames' depth instead of frustum overlap
+    /// (their policy's `covisibility`, at its defaults; docs/geometry.md).
     #[arg(long)]
     pub covisible: bool,
     /// Batching across sessions: gather concurrent steps' model calls for up to this many
@@ -112,11 +113,11 @@ pub fn run(a: Args) -> Result<()> {
         runtime: model::RuntimeOptions { provider, threads },
         steps: steps as usize,
         method,
-        policy: serde_json::json!({ "kind": policy.kind, "query": policy.query, "keep_last": policy.keep_last }),
+        policy: serde_json::json!({ "kind": policy.kind, "query": policy.query, "keep_last": policy.keep_last,
+                                    "covisibility": covisible.then(memory::CoVisibility::default) }),
         max_queue_per_session: max_queue as usize,
         max_inflight: max_inflight as usize,
         overlay_warp,
-        covisible,
         batch_window: (batch_window_ms > 0).then(|| std::time::Duration::from_millis(batch_window_ms)),
         batch_max: batch_max as usize,
         retain_idle: (retain_idle_secs > 0).then(|| std::time::Duration::from_secs(retain_idle_secs)),

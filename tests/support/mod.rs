@@ -174,9 +174,23 @@ impl PgCluster {
     }
 
     pub fn start(name: &str) -> PgCluster {
+        Self::start_with(name, None)
+    }
+
+    /// A cluster that takes TCP connections over TLS only, its certificate
+    /// issued for `names` (`subjectAltName`, e.g. "IP:127.0.0.1") by a CA of
+    /// its own, [`PgCluster::ca`].
+    pub fn start_tls(name: &str, names: &str) -> PgCluster {
+        Self::start_with(name, Some(names))
+    }
+
+    fn start_with(name: &str, tls_names: Option<&str>) -> PgCluster {
         let dir = std::env::temp_dir().join(format!("worldpack-pg-{name}-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&dir);
         std::fs::create_dir_all(&dir).unwrap();
+        if let Some(names) = tls_names {
+            Self::issue_certificate(&dir, names);
+        }
         if unsafe { libc_geteuid() } == 0 {
             Self::run({ let mut c = Command::new("chown"); c.args(["-R", "postgres:postgres"]).arg(&dir); c }, "chown");
         }
@@ -185,11 +199,32 @@ impl PgCluster {
         let mut init = Self::as_owner(Self::bin("initdb"));
         init.args(["-A", "trust", "-U", "postgres", "-D"]).arg(&data);
         Self::run(init, "initdb");
-        let mut ctl = Self::as_owner(Self::bin("pg_ctl"));
-        ctl.arg("-D").arg(&data).arg("-l").arg(dir.join("log")).arg("-w").arg("-o")
-            .arg(format!("-p {port} -c listen_addresses=127.0.0.1 -k {}", dir.display())).arg("start");
-        Self::run(ctl, "pg_ctl start");
-        PgCluster { dir, port }
+        let cluster = PgCluster { dir, port };
+        if tls_names.is_some() {
+            std::fs::write(data.join("pg_hba.conf"), "local all all trust\nhostssl all all 127.0.0.1/32 trust\n").unwrap();
+        }
+        cluster.restart();
+        cluster
+    }
+
+    /// A CA (ca.crt) and the server's key and certificate for `names`, signed by it.
+    fn issue_certificate(dir: &Path, names: &str) {
+        let openssl = |args: &[&str]| {
+            let mut c = Command::new("openssl");
+            c.current_dir(dir).args(args);
+            Self::run(c, "openssl");
+        };
+        let ec = ["-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:prime256v1", "-nodes"];
+        openssl(&[&["req", "-x509"][..], &ec, &["-keyout", "ca.key", "-out", "ca.crt", "-days", "2", "-subj", "/CN=worldpack test CA"]].concat());
+        openssl(&[&["req"][..], &ec, &["-keyout", "server.key", "-out", "server.csr", "-subj", "/CN=worldpack test database"]].concat());
+        std::fs::write(dir.join("server.ext"), format!("subjectAltName={names}\nbasicConstraints=CA:FALSE\nextendedKeyUsage=serverAuth\n")).unwrap();
+        openssl(&["x509", "-req", "-in", "server.csr", "-CA", "ca.crt", "-CAkey", "ca.key", "-CAcreateserial", "-out", "server.crt", "-days", "2", "-extfile", "server.ext"]);
+        std::fs::set_permissions(dir.join("server.key"), std::os::unix::fs::PermissionsExt::from_mode(0o600)).unwrap();
+    }
+
+    /// The CA that issued a TLS cluster's certificate (PEM).
+    pub fn ca(&self) -> PathBuf {
+        self.dir.join("ca.crt")
     }
 
     pub fn url(&self) -> PathBuf {
@@ -205,9 +240,12 @@ impl PgCluster {
     }
 
     pub fn restart(&self) {
+        let mut options = format!("-p {} -c listen_addresses=127.0.0.1 -k {}", self.port, self.dir.display());
+        if self.dir.join("server.crt").exists() {
+            options += &format!(" -c ssl=on -c ssl_cert_file={0}/server.crt -c ssl_key_file={0}/server.key", self.dir.display());
+        }
         let mut ctl = Self::as_owner(Self::bin("pg_ctl"));
-        ctl.arg("-D").arg(self.dir.join("data")).arg("-l").arg(self.dir.join("log")).arg("-w").arg("-o")
-            .arg(format!("-p {} -c listen_addresses=127.0.0.1 -k {}", self.port, self.dir.display())).arg("start");
+        ctl.arg("-D").arg(self.dir.join("data")).arg("-l").arg(self.dir.join("log")).arg("-w").arg("-o").arg(options).arg("start");
         Self::run(ctl, "pg_ctl start");
     }
 }

@@ -59,7 +59,9 @@ def main() -> None:
     ap.add_argument("--map", default="MAP20", help="a held-out map: MAP20, MAP29 or MAP18")
     ap.add_argument("--seed", type=int, default=0, help="picks the starting point and the walk")
     ap.add_argument("--range", type=float, default=8.0, help="metres from A to B (at least 0.8 of it)")
-    ap.add_argument("--policy", default="worldpack", help="the session's memory policy (baseline for a 4-frame model)")
+    ap.add_argument("--policy", default=None,
+                    help="the session's memory policy kind (baseline for a 4-frame model); default: the server's --policy, "
+                         "with co-visibility when it runs with --covisible")
     ap.add_argument("--max-return", type=int, help="generate only this many frames of the way back")
     ap.add_argument("--every", type=int, default=6, help="one column of the picture every this many generated frames")
     ap.add_argument("--out", default="doom_walk.png")
@@ -84,7 +86,7 @@ def main() -> None:
 
         client = Client(a.url)
         rgb, depth, pose = seen(0)
-        session = client.create_session(frames=[(rgb, pose)], intrinsics=S.intrinsics(), policy={"kind": a.policy})
+        session = client.create_session(frames=[(rgb, pose)], intrinsics=S.intrinsics(), policy={"kind": a.policy} if a.policy else None)
         back = plan.returning_point
         for t in range(1, back):                       # the exploration, observed with depth
             rgb, depth, pose = seen(t)
