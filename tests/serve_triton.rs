@@ -19,7 +19,7 @@ fn triton_runs_the_graphs_as_the_local_backend_does() {
     let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/small");
     let local = model::Model::load(&dir, model::RuntimeOptions::default()).unwrap();
     let manifest = local.manifest().clone();
-    let remote = model::Model::with_backend(&dir, manifest.clone(), Box::new(triton::TritonBackend::connect(&triton.backend(), &manifest).unwrap()));
+    let remote = model::Model::with_backend(&dir, manifest.clone(), Box::new(kserve::KServeBackend::connect(&triton.backend(), &manifest).unwrap()));
     assert_eq!(remote.provider(), "triton");
     // Every graph on a batch of 3 pseudo-random inputs of its declared shapes.
     let mut state = 7u64;

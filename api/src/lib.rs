@@ -115,7 +115,7 @@ pub fn load_model(dir: &std::path::Path, backend: Option<&str>, runtime: model::
         None => Model::load(dir, runtime).map_err(|e| format!("--model: {e}")),
         Some(url) => {
             let manifest = model::Manifest::load(dir).map_err(|e| format!("--model: {e}"))?;
-            let graphs = triton::TritonBackend::connect(url, &manifest).map_err(|e| format!("--model-backend: {e}"))?;
+            let graphs = kserve::KServeBackend::connect(url, &manifest).map_err(|e| format!("--model-backend: {e}"))?;
             Ok(Model::with_backend(dir, manifest, Box::new(graphs)))
         }
     }

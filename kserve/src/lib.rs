@@ -44,7 +44,7 @@ struct RemoteGraph {
     spec: GraphSpec,
 }
 
-pub struct TritonBackend {
+pub struct KServeBackend {
     base: String,
     agent: ureq::Agent,
     encoder: RemoteGraph,
@@ -53,11 +53,11 @@ pub struct TritonBackend {
     fusion: Option<RemoteGraph>,
 }
 
-impl TritonBackend {
+impl KServeBackend {
     /// Connects to `url` (`triton://HOST:PORT` or `http://HOST:PORT`, the
     /// server's HTTP port) and checks that every graph the manifest lists is
     /// served, ready, with the manifest's inputs and outputs.
-    pub fn connect(url: &str, manifest: &Manifest) -> Result<TritonBackend, ModelError> {
+    pub fn connect(url: &str, manifest: &Manifest) -> Result<KServeBackend, ModelError> {
         let base = base_url(url)?;
         let agent = ureq::AgentBuilder::new().timeout_connect(Duration::from_secs(5)).timeout(Duration::from_secs(120)).build();
         let graph = |role: GraphRole, spec: GraphSpec| -> Result<RemoteGraph, ModelError> {
@@ -79,7 +79,7 @@ impl TritonBackend {
             .map(|l| Ok((l.name.clone(), graph(GraphRole::Denoiser(&l.name), l.graph())?)))
             .collect::<Result<Vec<_>, ModelError>>()?;
         let fusion = manifest.fusion.clone().map(|spec| graph(GraphRole::Fusion, spec)).transpose()?;
-        Ok(TritonBackend { base, agent, encoder, decoder, denoisers, fusion })
+        Ok(KServeBackend { base, agent, encoder, decoder, denoisers, fusion })
     }
 
     /// The server's HTTP address (`http://HOST:PORT`).
@@ -100,7 +100,7 @@ impl TritonBackend {
     }
 }
 
-impl Backend for TritonBackend {
+impl Backend for KServeBackend {
     fn ready(&self) -> Result<(), ModelError> {
         self.agent.get(&format!("{}/v2/health/ready", self.base)).call().map(|_| ()).map_err(|e| call_error(&self.base, e))
     }
