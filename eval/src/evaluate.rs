@@ -10,7 +10,6 @@
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-use memory::covisibility::CoVisibility;
 use memory::{Policy, PolicyKind};
 use model::{Method, Model, RuntimeOptions, Sampler};
 use serde::{Deserialize, Serialize};
@@ -254,8 +253,7 @@ pub fn evaluate(s: &Settings, progress: &dyn Fn(Progress)) -> Result<Evaluation,
         let Some((Predictor::Model { model, policy, .. }, m)) = rows.iter().find(|(r, _)| &r.name == name).map(|(r, m)| (&r.predictor, *m)) else {
             return Err(setting("--covisible", format!("no model row called {name:?}")));
         };
-        let policy = Policy { covisibility: Some(CoVisibility::default()), ..policy.clone() };
-        let predictor = Predictor::Model { model, policy, sampler: sampler(model)? };
+        let predictor = Predictor::Model { model, policy: policy.clone().covisible(), sampler: sampler(model)? };
         rows.push((Row { name: format!("{name}_covisible"), predictor }, m));
     }
     for name in &s.plan_warps {

@@ -277,6 +277,11 @@ impl Policy {
         }
     }
 
+    /// This policy, re-ranked by co-visibility at the default settings.
+    pub fn covisible(self) -> Policy {
+        Policy { covisibility: Some(CoVisibility::default()), ..self }
+    }
+
     /// The view to score against: `target`, or the newest stored frame's
     /// frustum for [`Query::Current`] (the target when nothing is stored).
     pub fn query_view<'a>(&self, target: &'a Frustum, newest: Option<&'a Frustum>) -> &'a Frustum {

@@ -9,7 +9,6 @@ use std::path::PathBuf;
 use anyhow::{Context, Result, bail};
 use eval::probe::{FusionExamples, Predictor, Row, SEED, Settings, encode_all, fusion_examples};
 use eval::rollout::{Capture, Scorer, rollout};
-use memory::covisibility::CoVisibility;
 use eval::noise::PoseNoise;
 use eval::suite::{Trajectory, entries};
 
@@ -119,11 +118,7 @@ fn from_rollouts(o: &Options, list: &[eval::suite::Entry], bare: &model::Model, 
     let latents = trajs.iter().map(|t| encode_all(&served, t)).collect::<Result<Vec<_>, _>>()?;
     let row = Row {
         name: "rollout".into(),
-        predictor: Predictor::Model {
-            model: &served,
-            policy: memory::Policy { covisibility: Some(CoVisibility::default()), ..served.trained_policy() },
-            sampler: sampler.clone(),
-        },
+        predictor: Predictor::Model { model: &served, policy: served.trained_policy().covisible(), sampler: sampler.clone() },
     };
     let capture = Capture { bare, stride: o.stride, examples: Default::default() };
     let scorer = Scorer { capture: Some(&capture), ..Default::default() };
