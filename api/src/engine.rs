@@ -24,8 +24,6 @@ use crate::store::{FrameMeta, FrameRecord, SessionRecord, Store};
 pub struct Engine {
     pub store: Store,
     pub model: Option<Model>,
-    /// Show a geometry model's warp wherever it lands (`Config::overlay_warp`).
-    pub overlay_warp: bool,
     /// Gathers concurrent sessions' model calls into one (`Config::batch_window`); None: each step calls alone.
     pub batcher: Option<Batcher>,
     worlds: Mutex<HashMap<u64, Arc<World>>>,
@@ -59,7 +57,7 @@ pub struct TruthScore {
 
 impl Engine {
     pub fn new(store: Store, model: Option<Model>) -> Engine {
-        Engine { store, model, overlay_warp: false, batcher: None, worlds: Mutex::new(HashMap::new()) }
+        Engine { store, model, batcher: None, worlds: Mutex::new(HashMap::new()) }
     }
 
     /// The synthetic world of `seed`, generated once and shared.
@@ -203,15 +201,7 @@ impl Engine {
             Some(b) => b.predict(m, &s.policy.packing, sampler, item)?,
             None => batch::call(m, &s.policy.packing, sampler, &[&item])?.remove(0),
         };
-        let batch::Outcome { frame: mut predicted, layout, mut warp_ms, sample_ms, decode_ms: model_decode_ms, .. } = outcome;
-        if self.overlay_warp && !warp.is_empty() {
-            // What was seen stays as it was seen; the model fills what no source shows.
-            let t = Instant::now();
-            predicted.rgb = model::warp::fused_warp(&warp, &pose)?.overlay(predicted.rgb);
-            let img = &m.manifest().image;
-            predicted.latent = self.latent_of(&predicted.rgb, img.width as u32, img.height as u32, s.intrinsics(), "overlay")?;
-            warp_ms += ms(t);
-        }
+        let batch::Outcome { frame: predicted, layout, warp_ms, sample_ms, decode_ms: model_decode_ms, .. } = outcome;
         let img = &m.manifest().image;
         let truth = self.truth_at(s, &pose)?.map(|t| TruthScore {
             psnr_db: eval::metrics::psnr(&predicted.rgb, &t),

@@ -138,17 +138,20 @@ impl Server {
             Some(dir) => {
                 let mut m = tokio::task::block_in_place(|| load_model(dir, config.model_backend.as_deref(), config.runtime))?;
                 m.keep_sampled_latents(config.sampled_latents);
+                m.overlay_warp(config.overlay_warp).map_err(|e| match e {
+                    model::ModelError::Input { message, .. } => format!("--overlay-warp: {message}"),
+                    other => format!("--overlay-warp: {other}"),
+                })?;
                 Some(m)
             }
             None if config.model_backend.is_some() => return Err("--model-backend: a memory-only server runs no model".into()),
             None => None,
         };
         session::policy_of(&config.policy).map_err(|e| format!("--policy: {}", e.message))?;
-        if config.overlay_warp && model.as_ref().is_none_or(|m| m.manifest().denoiser.warp.is_none()) {
-            return Err("--overlay-warp: only a geometry model (a manifest with denoiser.warp) has a warp to overlay".into());
+        if config.overlay_warp && model.is_none() {
+            return Err("--overlay-warp: a memory-only server runs no model".into());
         }
         let mut engine = Engine::new(store, model);
-        engine.overlay_warp = config.overlay_warp;
         engine.batcher = config.batch_window.map(|w| batch::Batcher::new(w, config.batch_max));
         if !config.addr.ip().is_loopback() && !config.tokens.enabled() && !config.allow_unauthenticated {
             return Err(format!(

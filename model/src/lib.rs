@@ -36,6 +36,7 @@ pub struct Model {
     manifest: Manifest,
     backend: Box<dyn Backend>,
     sampled_latents: bool,
+    overlay_warp: bool,
 }
 
 impl Model {
@@ -49,7 +50,7 @@ impl Model {
 
     /// A model whose graphs run elsewhere (the manifest still describes them).
     pub fn with_backend(dir: &Path, manifest: Manifest, backend: Box<dyn Backend>) -> Model {
-        Model { dir: dir.to_path_buf(), manifest, backend, sampled_latents: false }
+        Model { dir: dir.to_path_buf(), manifest, backend, sampled_latents: false, overlay_warp: false }
     }
 
     /// With a fusion head: the memory keeps each generated frame's sampled
@@ -61,6 +62,17 @@ impl Model {
 
     pub fn keeps_sampled_latents(&self) -> bool {
         self.sampled_latents
+    }
+
+    /// A geometry model: each frame with warp sources shows their fused warp
+    /// wherever it lands, the model's frame only in its holes, and the memory
+    /// keeps that frame (`serve --overlay-warp`).
+    pub fn overlay_warp(&mut self, on: bool) -> Result<(), ModelError> {
+        if on && self.manifest.denoiser.warp.is_none() {
+            return Err(ModelError::input("overlay_warp", "only a geometry model (a manifest with denoiser.warp) has a warp to overlay"));
+        }
+        self.overlay_warp = on;
+        Ok(())
     }
 
     pub fn dir(&self) -> &Path {

@@ -144,10 +144,38 @@ impl Model {
                 }
             }
         }
+        if self.overlay_warp {
+            self.overlay_warps(&mut images, &mut latent, requests)?;
+        }
         let frames = (0..requests.len())
             .map(|j| Ok(Predicted { latent: latent.data[j * per..(j + 1) * per].to_vec(), rgb: tensor_to_frame(&images, j)? }))
             .collect::<Result<Vec<_>, ModelError>>()?;
         Ok(Prediction { frames, layout: layout.name.clone(), warp_ms, sample_ms, decode_ms: started.elapsed().as_secs_f64() * 1e3 })
+    }
+
+    /// [`Model::overlay_warp`]: each request with warp sources shows their fused
+    /// warp wherever it lands, and its latent becomes that frame's, re-encoded.
+    fn overlay_warps(&self, images: &mut Tensor, latent: &mut Tensor, requests: &[Request]) -> Result<(), ModelError> {
+        let with: Vec<usize> = (0..requests.len()).filter(|&j| !requests[j].warp.is_empty()).collect();
+        if with.is_empty() {
+            return Ok(());
+        }
+        let n = images.data.len() / requests.len();
+        let plane = n / 3;
+        let mut shown = Vec::with_capacity(with.len() * n);
+        for &j in &with {
+            let rgb = crate::warp::fused_warp(requests[j].warp, requests[j].target_pose)?.overlay(tensor_to_frame(images, j)?);
+            // The frame as the encoder would take it from bytes (frame_to_tensor's scale).
+            let frame: Vec<f32> = (0..n).map(|i| (rgb[(i % plane) * 3 + i / plane] as f64 / 127.5 - 1.0) as f32).collect();
+            images.data[j * n..(j + 1) * n].copy_from_slice(&frame);
+            shown.extend(frame);
+        }
+        let encoded = self.encode(&Tensor::new([vec![with.len()], images.shape[1..].to_vec()].concat(), shown))?;
+        let per = latent.data.len() / requests.len();
+        for (i, &j) in with.iter().enumerate() {
+            latent.data[j * per..(j + 1) * per].copy_from_slice(&encoded.data[i * per..(i + 1) * per]);
+        }
+        Ok(())
     }
 
     /// The fusion head over a batch of decoded `images`: each request's
