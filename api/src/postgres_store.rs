@@ -30,8 +30,6 @@ const CHECKOUT: Duration = Duration::from_secs(2);
 /// Held while migrating, so replicas that start together migrate one at a time.
 const MIGRATION_LOCK: i64 = 0x776f_726c_6470_6163; // "worldpac"
 
-type Manager = Explaining;
-
 /// r2d2_postgres's manager with errors that say what happened: the driver's
 /// own text is its kind alone ("db error"), the server's message is in its
 /// source, and the pool reports an error by its text.
@@ -65,7 +63,7 @@ pub struct PgStore {
     /// The URL fit to print (`redacted`): what errors name.
     shown: String,
     /// Some until drop (see `Drop`).
-    pool: Option<Pool<Manager>>,
+    pool: Option<Pool<Explaining>>,
 }
 
 /// A query's error: `Unavailable` when the connection is gone, else `Failed`.
@@ -155,7 +153,7 @@ impl PgStore {
 
     /// A pooled connection, or `Unavailable` after [`CHECKOUT`] (while the
     /// database is down: the pool opens new ones once it is back).
-    fn client(&self) -> Result<PooledConnection<Manager>, StoreError> {
+    fn client(&self) -> Result<PooledConnection<Explaining>, StoreError> {
         let pool = self.pool.as_ref().expect("the pool lives until the store is dropped");
         pool.get().map_err(|e| StoreError::Unavailable(format!("{}: {e}", self.shown)))
     }
