@@ -124,9 +124,10 @@ fn percent_decoded(s: &str) -> String {
 }
 
 fn roots(path: &PathBuf) -> Result<RootCertStore, String> {
+    let named = |e: &dyn std::fmt::Display| format!("sslrootcert {}: {e}", path.display());
     let mut roots = RootCertStore::empty();
-    for cert in CertificateDer::pem_file_iter(path).map_err(|e| format!("sslrootcert {}: {e}", path.display()))? {
-        roots.add(cert.map_err(|e| format!("sslrootcert {}: {e}", path.display()))?).map_err(|e| format!("sslrootcert {}: {e}", path.display()))?;
+    for cert in CertificateDer::pem_file_iter(path).map_err(|e| named(&e))? {
+        roots.add(cert.map_err(|e| named(&e))?).map_err(|e| named(&e))?;
     }
     if roots.is_empty() {
         return Err(format!("sslrootcert {}: no certificate in it", path.display()));

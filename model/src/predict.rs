@@ -129,7 +129,8 @@ impl Model {
         if manifest.fusion.is_some() && !fused.is_empty() {
             let (shown, kept) = self.fuse(images, requests, &fused)?;
             images = shown;
-            if !self.sampled_latents {
+            // With the warp overlaid (below) the memory keeps that frame instead, encoded there.
+            if !self.sampled_latents && !self.overlay_warp {
                 // The memory keeps the frame shown (or the one the head names for it): the
                 // blended ones re-encoded, the others as sampled.
                 let kept = kept.as_ref().unwrap_or(&images);

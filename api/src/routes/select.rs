@@ -8,7 +8,7 @@ use axum::body::Bytes;
 use axum::extract::{Path, State};
 use axum::extract::rejection::{BytesRejection, PathRejection};
 use axum::http::HeaderMap;
-use memory::CoVisibility;
+use memory::{CoVisibility, Policy};
 use memory::covisibility::CoVisibilityStats;
 use memory::input::PoseInput;
 use serde::{Deserialize, Serialize};
@@ -55,10 +55,7 @@ pub async fn select(State(st): St, caller: Caller, id: Result<Path<u64>, PathRej
     let out = blocking(move || {
         let t = Instant::now();
         let frustum = s.frustum(pose)?;
-        let mut policy = s.policy.clone();
-        if covisibility.is_some() {
-            policy.covisibility = covisibility;
-        }
+        let policy = Policy { covisibility: covisibility.or(s.policy.covisibility), ..s.policy.clone() };
         let selection = s.plan(&policy, &frustum, None)?;
         let plan = selection.plan;
         Ok(Selected {
