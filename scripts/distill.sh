@@ -10,7 +10,11 @@
 #   ./scripts/distill.sh pair      # then shows the teacher's head's frame and keeps its own head's
 #                                  # (the memory's context for the next frames), in the warp's holes near
 #                                  # where it landed with the warp's colours (HOLE_FILL, 7; 0: off)
-# RUN (runs/distill/<N>step) holds the run; PY runs `python -m worldpack_model`
+#   ./scripts/distill.sh adversarial  # the served 1-step student fine-tuned with ADD's adversarial term
+#                                  # (distill --adversarial-weight ADV, 0.5) on frames from DECODER's decoder
+#                                  # (a model folder; default the committed sharper one); STEPS, MINUTES, BATCH (16)
+#   ./scripts/distill.sh adversarial-export  # -> OUT (RUN/model), with DECODER's decoder and HEADS's fusion heads (a model folder)
+# RUN (runs/distill/<N>step; runs/distill/adversarial for those two) holds the run; PY runs `python -m worldpack_model`
 # (default ./scripts/model.sh, which sets up .venv-train).
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -20,6 +24,9 @@ grid="${GRID:-999,499}"
 n=$(tr ',' '\n' <<<"$grid" | wc -l)
 run="${RUN:-runs/distill/${n}step}"
 out="${OUT:-fixtures/variants/worldpack_geometry_fused_${n}step}"
+# The adversarial student is a 1-step one, exported into its run until it earns a place in fixtures/.
+case "${1:-}" in adversarial*) run="${RUN:-runs/distill/adversarial}"; out="${OUT:-$run/model}" ;; esac
+decoder="${DECODER:-fixtures/variants/worldpack_geometry_fused_1step_sharp}"
 read -r -a py <<<"${PY:-./scripts/model.sh}"
 case "${1:-}" in
   data)
@@ -47,5 +54,16 @@ case "${1:-}" in
   pair)
     data=(); [ -f "$run/fusion-data/truth.npy" ] && data=(--data "$run/fusion-data")
     "${py[@]}" fusion-pair --kept "$out" --shown "$teacher" --out "$out" --hole-fill "${HOLE_FILL:-7}" "${data[@]}" ;;
-  *) sed -n '2,13p' "$0"; exit 2 ;;
+  adversarial)
+    student=fixtures/variants/worldpack_geometry_fused_1step
+    [ -f "$run/cdit-worldpack.pt" ] || "${py[@]}" recover --model "$teacher" --run "$run"
+    [ -f "$run/distilled-worldpack-1.pt" ] || "${py[@]}" recover --model "$student" --run "$run"
+    "${py[@]}" encode --data data/train120 --run "$run" --device "${DEVICE:-auto}"
+    "${py[@]}" distill --data data/train120 --run "$run" --grid 999 --teacher-steps 10 --steps "${STEPS:-20000}" \
+        --batch "${BATCH:-16}" --lr "${LR:-1e-4}" --ema 0.998 --device "${DEVICE:-auto}" --threads "${THREADS:-1}" \
+        --adversarial-weight "${ADV:-0.5}" --adversarial-start 200 --decoder-from "$decoder" ${MINUTES:+--minutes "$MINUTES"} ;;
+  adversarial-export)
+    "${py[@]}" export --run "$run" --policy worldpack --distilled 1 --layouts worldpack --data data/val --out "$out" \
+        --half --decoder-from "$decoder" --fusion-from "${HEADS:-$decoder}" --threads "${THREADS:-1}" ;;
+  *) sed -n '2,17p' "$0"; exit 2 ;;
 esac

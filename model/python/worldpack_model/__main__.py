@@ -93,6 +93,8 @@ def main() -> None:
     p.add_argument("--half", action="store_true", help="round the weights to float16 and store them so (half the size)")
     p.add_argument("--distilled", type=int, help="export the N-step student run/distilled-<policy>-N.pt instead")
     p.add_argument("--fusion-from", type=Path, help="a model folder whose fusion head the export keeps (a student keeps its teacher's)")
+    p.add_argument("--decoder-from", type=Path, help="a model folder whose decoder the export keeps (a sharpened one, "
+                   "`sharpen-decoder`; its encoder must be the run's)")
 
     p = sub.add_parser("distill", help="distil a trained CDiT's DDIM sampler into a few-step student "
                        "(distill.py; resumes from run/distilled-<policy>-<N>.pt)")
@@ -107,6 +109,14 @@ def main() -> None:
     p.add_argument("--minutes", type=float)
     p.add_argument("--edge-weight", type=float, default=0.0,
                    help="weight of the gradient difference loss on decoded frames (Mathieu et al. 2016); 0: latent MSE only")
+    p.add_argument("--adversarial-weight", type=float, default=0.0,
+                   help="times VQGAN's adaptive weight: ADD's adversarial term on decoded frames (a conditional "
+                        "PatchGAN beside the warp); 0: off")
+    p.add_argument("--adversarial-start", type=int, default=200,
+                   help="the step from which the student feels the discriminator (it trains from the first)")
+    p.add_argument("--decoder-from", type=Path,
+                   help="a model folder whose decoder renders the frames the discriminator judges (the one the "
+                        "student will be served with); default: the run's")
 
     p = sub.add_parser("paper-scale", help="a model folder at the paper's shapes (224x224 frames, 4x28x28 latents, "
                        "844 vs 784 context tokens) with random seeded weights: --size paper (CDiT-B/2, SD-VAE-shaped "
@@ -245,12 +255,12 @@ def main() -> None:
     elif a.stage == "export":
         from . import export
 
-        export.export(a.run, a.policy, a.layouts.split(","), a.data, a.out, a.device, a.half, a.distilled, a.fusion_from)
+        export.export(a.run, a.policy, a.layouts.split(","), a.data, a.out, a.device, a.half, a.distilled, a.fusion_from, a.decoder_from)
     elif a.stage == "distill":
         from . import distill
 
         distill.distill(a.data, a.run, a.policy, a.grid, a.teacher_steps, a.steps, a.batch, a.lr, a.ema, a.device, a.minutes,
-                        a.edge_weight)
+                        a.edge_weight, a.adversarial_weight, a.adversarial_start, a.decoder_from)
 
 
 if __name__ == "__main__":

@@ -24,7 +24,24 @@ LeCun (2016, "Deep multi-scale video prediction beyond mean square error"),
 eq. 5 with alpha 1, on the frozen decoder's images of the student's and the
 target's clean frames: whatever a one-step student cannot place exactly, the
 latent MSE alone spreads into blur; this term asks for edges as strong as the
-teacher's where they are."""
+teacher's where they are.
+
+`adversarial_weight` > 0 adds an adversarial term, as Adversarial Diffusion
+Distillation does (Sauer et al. 2023, "Adversarial Diffusion Distillation":
+a one-step student initialised from the diffusion model, trained against a
+discriminator on its samples beside the distillation loss): a regression
+target alone gives the mean of what could be there, which is blur wherever
+the context leaves the frame open (the warp's holes, new ground). The
+discriminator is the conditional PatchGAN of the fusion head's pix2pix
+training (losses.PatchDiscriminator), on the decoded frame beside the warp it
+was made from (image and landed mask); real frames are the clean latents
+decoded by the same decoder. The decoder is the one the student will be
+served with (`decoder_from`, e.g. the sharpened one), frozen. The term's
+weight is VQGAN's adaptive one at the student's last layer, times
+`adversarial_weight`, from step `adversarial_start` on (the discriminator
+trains from the first step). Where ADD distils the teacher's score, this
+keeps progressive distillation's target: the teacher here is a short
+deterministic sampler, whose landing point is cheap and exact."""
 
 from __future__ import annotations
 
@@ -43,10 +60,10 @@ from . import data as wdata
 from .cdit import CDiT
 from .config import LAYOUTS
 from .diffusion import Schedule
-from .losses import gradient_difference
+from .losses import PatchDiscriminator, adaptive_weight, gradient_difference, hinge_discriminator
 from .recipe import ContextAugmenter, Recipe
 from .train import load_autoencoder, load_optimiser, log, optimise, pick_device, run_config, save
-from .warp import batch_warp
+from .warp import batch_warp_pixels, warp_input
 
 
 def parse_grid(text: str, timesteps: int) -> list[int]:
@@ -102,7 +119,8 @@ def teacher_segment(eps_fn, alpha_bar: torch.Tensor, x: torch.Tensor, start: tor
 
 
 def distill(data: Path, run: Path, policy: str, grid_text: str, teacher_steps: int, steps: int, batch: int, lr: float,
-            ema_decay: float, device: str, minutes: float | None, edge_weight: float = 0.0) -> None:
+            ema_decay: float, device: str, minutes: float | None, edge_weight: float = 0.0,
+            adversarial_weight: float = 0.0, adversarial_start: int = 0, decoder_from: Path | None = None) -> None:
     cfg = run_config(run)
     dev = pick_device(device)
     grid = parse_grid(grid_text, cfg.diffusion.timesteps)
@@ -120,10 +138,17 @@ def distill(data: Path, run: Path, policy: str, grid_text: str, teacher_steps: i
     student = copy.deepcopy(teacher).train().requires_grad_(True)
     ema = copy.deepcopy(teacher).requires_grad_(False)
     opt = torch.optim.AdamW(student.parameters(), lr=lr, weight_decay=0.0)
+    adversarial = adversarial_weight > 0
+    if adversarial and not cfg.cdit.warp:
+        raise SystemExit("--adversarial-weight: the discriminator judges a frame beside its warp; "
+                         f"{teacher_path} is not a geometry model (no warp input)")
+    # Conditional on the warp: the frame (3), the warped image (3) and where it landed (1).
+    disc = PatchDiscriminator(channels=7).to(dev) if adversarial else None
+    opt_d = torch.optim.Adam(disc.parameters(), lr=lr, betas=(0.5, 0.9)) if adversarial else None
 
     name = f"distilled-{policy}-{len(grid)}"
     ckpt = run / f"{name}.pt"
-    step = 0
+    step = origin = 0  # origin: the step this adversarial fine-tune began at (`adversarial_start` counts from it)
     if ckpt.exists():
         saved = torch.load(ckpt, map_location=dev, weights_only=False)
         if saved["distilled"]["timesteps"] != grid:
@@ -133,11 +158,21 @@ def distill(data: Path, run: Path, policy: str, grid_text: str, teacher_steps: i
         ema.load_state_dict(saved["ema"])
         load_optimiser(opt, saved, ckpt)
         step = saved["step"]
+        origin = saved.get("adversarial_origin", step)
+        if adversarial and "disc" in saved:
+            disc.load_state_dict(saved["disc"])
+            opt_d.load_state_dict(saved["opt_d"])
         print(f"resuming {ckpt.name} at step {step}")
 
     layout = LAYOUTS[policy]
     source = wdata.PlannedLatents(data, run / "latents", policy, layout, memory_focus, warp=cfg.cdit.warp)
-    autoencoder = load_autoencoder(run, dev).requires_grad_(False) if cfg.cdit.warp or edge_weight > 0 else None
+    decoded = edge_weight > 0 or adversarial
+    autoencoder = load_autoencoder(run, dev).requires_grad_(False) if cfg.cdit.warp or decoded else None
+    if decoder_from is not None:
+        from .sharpen import decoder_from as load_decoder
+
+        load_decoder(decoder_from, autoencoder.decoder)
+        autoencoder.decoder.requires_grad_(False)
     alpha_bar = torch.tensor(Schedule(cfg.diffusion).alphas_cumprod, dtype=torch.float32, device=dev)
     augment = ContextAugmenter(recipe, source, layout.rates, alpha_bar, cfg.cdit.context_noise, 3000 + step, dev)
     rng = np.random.default_rng(4000 + step)
@@ -149,17 +184,26 @@ def distill(data: Path, run: Path, policy: str, grid_text: str, teacher_steps: i
               "prediction": "v (exported as epsilon)"}
     if edge_weight > 0:
         record["edge_weight"] = edge_weight
+    if adversarial:
+        record["adversarial"] = {"method": "Adversarial Diffusion Distillation's adversarial term (Sauer et al. 2023): "
+                                           "conditional PatchGAN on decoded frames, hinge loss, VQGAN's adaptive weight",
+                                 "weight": adversarial_weight, "start": adversarial_start, "from_step": origin,
+                                 "decoder": str(decoder_from) if decoder_from else "the run's"}
+    extra = lambda: dict(disc=disc.state_dict(), opt_d=opt_d.state_dict(), adversarial_origin=origin) if adversarial else {}
     checkpoint = lambda: save(ckpt, model=student.state_dict(), ema=ema.state_dict(), opt=opt.state_dict(), step=step,
                               policy=policy, memory_focus=memory_focus, recipe=recipe.to_json(), distilled=record,
                               init_from=str(teacher_path), plans_query=source.plans_query,
-                              data=state.get("data", wdata.describe(data)))
+                              data=state.get("data", wdata.describe(data)), **extra())
     deadline = time.time() + minutes * 60 if minutes is not None else math.inf
     bar = tqdm(total=steps, initial=step, desc=name, unit="step")
     started, seen = time.time(), 0
     while step < steps and time.time() < deadline:
         drawn = source.batch(rng, batch)
         x0, action, rel_time, groups = augment(drawn, teacher)
-        warp_in = batch_warp(source, drawn, autoencoder, dev) if cfg.cdit.warp else None
+        warp_in = None
+        if cfg.cdit.warp:
+            warped, landed = batch_warp_pixels(source, drawn, dev)
+            warp_in = warp_input(autoencoder.encoder, autoencoder.scale, warped, landed, autoencoder.cfg.downsample)
         k = torch.randint(0, len(grid), (batch,), device=dev)
         t, end = starts[k], ends[k]
         ab = alpha_bar[t].view(-1, 1, 1, 1)
@@ -173,17 +217,35 @@ def distill(data: Path, run: Path, policy: str, grid_text: str, teacher_steps: i
         v = student(x_t, t.float(), action, rel_time, groups, rates=layout.rates, warp=warp_in)
         x0_student = ab.sqrt() * x_t - (1 - ab).sqrt() * v
         loss = F.mse_loss(x0_student, x0_target)
+        image = autoencoder.decoder(x0_student / autoencoder.scale) if decoded else None
         if edge_weight > 0:
             with torch.no_grad():
                 image_target = autoencoder.decoder(x0_target / autoencoder.scale)
-            loss = loss + edge_weight * gradient_difference(autoencoder.decoder(x0_student / autoencoder.scale), image_target)
+            loss = loss + edge_weight * gradient_difference(image, image_target)
+        d_loss = weight = torch.tensor(0.0)
+        if adversarial:
+            condition = torch.cat([(warped.permute(0, 3, 1, 2).float() / 127.5 - 1.0) * landed[:, None],
+                                   landed[:, None].float()], dim=1)
+            judge = lambda frame: disc(torch.cat([frame, condition], dim=1))
+            if step - origin >= adversarial_start:
+                g_adv = -judge(image).mean()
+                weight = adversarial_weight * adaptive_weight(loss, g_adv, student.final.weight)
+                loss = loss + weight * g_adv
         optimise(student, ema, opt, loss, ema_decay)
+        if adversarial:
+            with torch.no_grad():
+                real = autoencoder.decoder(x0 / autoencoder.scale)
+            d_loss = hinge_discriminator(judge(real), judge(image.detach()))
+            opt_d.zero_grad(set_to_none=True)
+            d_loss.backward()
+            opt_d.step()
         step += 1
         seen += batch
         bar.update(1)
         if step % 50 == 0:
-            bar.set_postfix(loss=f"{loss.item():.4f}")
-            log(run, {"stage": name, "step": step, "loss": loss.item(), "samples_per_s": seen / (time.time() - started)})
+            bar.set_postfix(loss=f"{loss.item():.4f}", d_loss=f"{d_loss.item():.3f}", weight=f"{float(weight):.3f}")
+            log(run, {"stage": name, "step": step, "loss": loss.item(), "d_loss": d_loss.item(),
+                      "adversarial_weight": float(weight), "samples_per_s": seen / (time.time() - started)})
         if step % 500 == 0:
             checkpoint()
     bar.close()

@@ -185,11 +185,12 @@ def reference_rows(source: wdata.PlannedLatents, count: int) -> list[tuple[int, 
 
 
 def export(run: Path, policy: str, layout_names: list[str], data: Path, out: Path, device: str, half: bool = False,
-           distilled: int | None = None, fusion_from: Path | None = None) -> None:
+           distilled: int | None = None, fusion_from: Path | None = None, decoder_from: Path | None = None) -> None:
     """A trained run's checkpoint (its EMA weights) as a model folder:
     `cdit-<policy>.pt`, or with `distilled` N the N-step student
     `distilled-<policy>-N.pt` (distill.py). `fusion_from`: a model folder
-    whose fusion head the new folder keeps."""
+    whose fusion head the new folder keeps; `decoder_from`: one whose decoder
+    it keeps (a fine-tuned decoder on the same encoder, sharpen.py)."""
     cfg = run_config(run)
     if distilled is None:
         ckpt_path, stage = run / f"cdit-{policy}.pt", f"cdit-{policy}"
@@ -201,6 +202,11 @@ def export(run: Path, policy: str, layout_names: list[str], data: Path, out: Pat
             raise SystemExit(f"--distilled: no {ckpt_path}; make it with `distill --policy {policy}` and a {distilled}-step --grid")
     ckpt = torch.load(ckpt_path, map_location="cpu", weights_only=False)
     ae = load_autoencoder(run, torch.device("cpu"))
+    if decoder_from is not None:
+        from .sharpen import check_same_encoder, decoder_from as load_decoder
+
+        check_same_encoder(ae.encoder, decoder_from, f"--decoder-from: {run}'s encoder")
+        load_decoder(decoder_from, ae.decoder)
     model = CDiT(cfg.cdit)
     model.load_state_dict(ckpt["ema"])
     if "distilled" in ckpt:
@@ -229,6 +235,11 @@ def export(run: Path, policy: str, layout_names: list[str], data: Path, out: Pat
     write_model(cfg, ae, model, layout_names, data, out, half, training=training,
                 generated_level=ckpt.get("recipe", {}).get("generated_level", 0.0), distilled=ckpt.get("distilled"),
                 tolerance=tolerance)
+    if decoder_from is not None:
+        manifest = json.loads((out / "manifest.json").read_text())
+        theirs = json.loads((decoder_from / "manifest.json").read_text())["autoencoder"]["decoder"]
+        manifest["autoencoder"]["decoder"]["trained"] = {**theirs.get("trained", {}), "from": decoder_from.name}
+        (out / "manifest.json").write_text(json.dumps(manifest, indent=2))
     if fusion_from is not None:
         keep_fusion_head(fusion_from, out)
 

@@ -74,6 +74,17 @@ def decoder_from(model_dir: Path, decoder: nn.Module) -> None:
         raise SystemExit(f"--decoder-from: the rebuilt decoder differs from {ref} by {worst:.2e}")
 
 
+def check_same_encoder(encoder: nn.Module, model_dir: Path, what: str) -> None:
+    """Refuses to put a decoder and an encoder together that were not trained
+    on the same latent space: `encoder` must reproduce `model_dir`'s encoder reference."""
+    with torch.no_grad():
+        got = encoder(torch.from_numpy(np.load(model_dir / "reference" / "encoder" / "image.npy"))).numpy()
+    worst = float(np.abs(got - np.load(model_dir / "reference" / "encoder" / "latent.npy")).max())
+    if worst > 1e-3:
+        raise SystemExit(f"{what} is not {model_dir}'s (latents differ by {worst:.2e}); "
+                         "a decoder trained on one would not fit the other's latents")
+
+
 def sharpen_decoder(data: Path, val: Path | None, run: Path, steps: int, batch: int, lr: float, edge_weight: float,
                     adversarial_weight: float, adversarial_start: int, ema_decay: float, device: str,
                     minutes: float | None, start_from: Path | None = None) -> None:
@@ -168,13 +179,7 @@ def swap_decoder(model_dir: Path, run: Path, out: Path, half: bool) -> None:
     state = torch.load(run / CHECKPOINT, map_location="cpu")
     ae = load_autoencoder(run, torch.device("cpu"))
     manifest = json.loads((model_dir / "manifest.json").read_text())
-    ref = np.load(model_dir / "reference" / "encoder" / "image.npy")
-    with torch.no_grad():
-        raw = ae.encoder(torch.from_numpy(ref))
-        mine = np.load(model_dir / "reference" / "encoder" / "latent.npy")
-        if np.abs(raw.numpy() - mine).max() > 1e-3:
-            raise SystemExit(f"--run: {run}'s encoder is not {model_dir}'s (latents differ by "
-                             f"{np.abs(raw.numpy() - mine).max():.2e}); the fine-tuned decoder would not fit its latents")
+    check_same_encoder(ae.encoder, model_dir, f"--run: {run}'s encoder")
     ae.decoder.load_state_dict(state["ema"])
     ae.decoder.eval()
     if half:

@@ -86,13 +86,14 @@ def warp_input(encoder, scale: float, warped: torch.Tensor, mask: torch.Tensor, 
 
 
 @torch.no_grad()
-def batch_warp(source, batch, autoencoder, device: torch.device, pose_noise=None, noisy_items=None) -> torch.Tensor:
-    """The `warp` input for a training batch of `data.PlannedLatents` (rows
-    without a source frame get an empty warp: zero image, zero coverage).
-    `pose_noise` (translation sd in blocks, rotation sd in degrees, a torch
-    generator): the source frames' poses are perturbed as the recipe perturbs
-    context poses, so the model learns how far to trust a warp made from a
-    wrong pose. `noisy_items` (B,): which items get it (default: all)."""
+def batch_warp_pixels(source, batch, device: torch.device, pose_noise=None, noisy_items=None):
+    """A training batch's warp in pixels: the warped image (B, H, W, 3,
+    uint8) and where it landed (B, H, W, bool). Rows without a source frame
+    get an empty warp. `pose_noise` (translation sd in blocks, rotation sd in
+    degrees, a torch generator): the source frames' poses are perturbed as
+    the recipe perturbs context poses, so the model learns how far to trust a
+    warp made from a wrong pose. `noisy_items` (B,): which items get it
+    (default: all)."""
     rgb, depth, src_pose, dst_pose, present = source.warp_pixels(batch)
     t = lambda a: torch.from_numpy(a).to(device)
     src = t(src_pose)
@@ -102,5 +103,12 @@ def batch_warp(source, batch, autoencoder, device: torch.device, pose_noise=None
         rows = perturb_poses(src[..., :3, :].reshape(b, k, 12).float(), which, *pose_noise).double()
         src = src.clone()
         src[..., :3, :] = rows.view(b, k, 3, 4)
-    warped, mask = forward_warp(t(rgb), t(depth), source.intrinsics, src, t(dst_pose), t(present))
+    return forward_warp(t(rgb), t(depth), source.intrinsics, src, t(dst_pose), t(present))
+
+
+@torch.no_grad()
+def batch_warp(source, batch, autoencoder, device: torch.device, pose_noise=None, noisy_items=None) -> torch.Tensor:
+    """The `warp` input for a training batch of `data.PlannedLatents`
+    (`batch_warp_pixels`, encoded by `warp_input`)."""
+    warped, mask = batch_warp_pixels(source, batch, device, pose_noise, noisy_items)
     return warp_input(autoencoder.encoder, autoencoder.scale, warped, mask, autoencoder.cfg.downsample)
