@@ -7,9 +7,11 @@
 #   ./scripts/sharpen.sh train voxel|doom      # the decoder fine-tune, encoder frozen (MINUTES, STEPS; DECODER_FROM:
 #                                              # a model folder whose decoder a new run starts from)
 #   ./scripts/sharpen.sh swap voxel|doom       # the served model with that decoder: runs/sharp/<world>/model
-#   ./scripts/sharpen.sh head voxel            # a pix2pix head for the frame shown (conditional PatchGAN + MSE + edges),
-#                                              # trained on the sharp-decoder student's own frames: runs/sharp/voxel/head/model
-#                                              # (HEAD_STEPS, ADVERSARIAL, MINUTES; SHARP: the model whose decoder it sits on)
+#   ./scripts/sharpen.sh head voxel|doom       # the fusion heads retrained on the frames of SHARP (the model with the new
+#                                              # decoder; default runs/sharp/<world>/model): the frame kept with MSE + edges
+#                                              # (KEPT_STEPS; RUN/kept), and on voxel a pix2pix head for the frame shown
+#                                              # (conditional PatchGAN + MSE + edges; HEAD_STEPS, ADVERSARIAL, MINUTES;
+#                                              # RUN/head), paired with hole fill: RUN/head/model (Doom: one head, both frames)
 #   ./scripts/sharpen.sh eval voxel|doom       # it against the served model, paired (SUITE to change it;
 #                                              # CANDIDATE: another model folder than runs/sharp/<world>/model, OUT: its folder)
 # RUN: another run folder than runs/sharp/<world> (a fresh fine-tune beside a finished one).
@@ -74,16 +76,23 @@ keep_fusion_head(Path('fixtures/variants/worldpack_geometry_fused'), Path('runs/
     ./scripts/model.sh sharpen-decoder --data "$train" --val "$val" --run "$run" --steps "${STEPS:-20000}" \
         --threads "$threads" "${minutes[@]}" ${DECODER_FROM:+--decoder-from "$DECODER_FROM"} ;;
   head)
-    [ "$world" = voxel ] || { echo "head: voxel only (Doom's served model has one head, not a pair to keep half of)" >&2; exit 2; }
-    sharp="${SHARP:-fixtures/variants/worldpack_geometry_fused_1step_sharp}"
+    sharp="${SHARP:-$run/model}"
+    steps=(--steps 1); [ "$world" = doom ] && steps=(--stride 2)  # the served samplers: the 1-step student, Doom's 10 DDIM steps
     [ -f "$run/head/bare/manifest.json" ] || ./scripts/model.sh fusion-strip --model "$sharp" --out "$run/head/bare"
-    [ -f "$run/head/data/truth.npy" ] || "$bin" fusion-data --suite "$train" --model "$run/head/bare" --steps 1 \
+    [ -f "$run/head/data/truth.npy" ] || "$bin" fusion-data --suite "$train" --model "$run/head/bare" "${steps[@]}" \
         --threads "$threads" --out "$run/head/data"
+    # The frame kept: MSE + edges against the truth, the served kept head's recipe, on this decoder's frames.
+    ./scripts/model.sh fusion-train --data "$run/head/data" --run "$run/kept" --steps "${KEPT_STEPS:-4000}" --edge-weight 1 \
+        --threads "$threads"
+    if [ "$world" = doom ]; then
+      ./scripts/model.sh fusion-export --run "$run/kept" --model "$run/head/bare" --out "$run/head/model" --data "$run/head/data"
+      exit 0
+    fi
+    ./scripts/model.sh fusion-export --run "$run/kept" --model "$run/head/bare" --out "$run/kept/model" --data "$run/head/data"
     ./scripts/model.sh fusion-train --data "$run/head/data" --run "$run/head" --steps "${HEAD_STEPS:-6000}" --lr 1e-3 \
         --edge-weight 1 --adversarial-weight "${ADVERSARIAL:-0.5}" --threads "$threads" "${minutes[@]}"
     ./scripts/model.sh fusion-export --run "$run/head" --model "$run/head/bare" --out "$run/head/shown" --data "$run/head/data"
-    # The frame kept stays the one SHARP keeps (its own head, holes filled from the warp).
-    ./scripts/model.sh fusion-pair --kept "$sharp" --shown "$run/head/shown" --out "$run/head/model" --hole-fill 7 \
+    ./scripts/model.sh fusion-pair --kept "$run/kept/model" --shown "$run/head/shown" --out "$run/head/model" --hole-fill 7 \
         --data "$run/head/data" ;;
   swap)
     ./scripts/model.sh swap-decoder --model "$served" --run "$run" --out "$run/model" --half ;;
