@@ -171,8 +171,7 @@ def distill(data: Path, run: Path, policy: str, grid_text: str, teacher_steps: i
     if decoder_from is not None:
         from .sharpen import decoder_from as load_decoder
 
-        load_decoder(decoder_from, autoencoder.decoder)
-        autoencoder.decoder.requires_grad_(False)
+        load_decoder(decoder_from, autoencoder)
     alpha_bar = torch.tensor(Schedule(cfg.diffusion).alphas_cumprod, dtype=torch.float32, device=dev)
     augment = ContextAugmenter(recipe, source, layout.rates, alpha_bar, cfg.cdit.context_noise, 3000 + step, dev)
     rng = np.random.default_rng(4000 + step)

@@ -203,10 +203,9 @@ def export(run: Path, policy: str, layout_names: list[str], data: Path, out: Pat
     ckpt = torch.load(ckpt_path, map_location="cpu", weights_only=False)
     ae = load_autoencoder(run, torch.device("cpu"))
     if decoder_from is not None:
-        from .sharpen import check_same_encoder, decoder_from as load_decoder
+        from .sharpen import decoder_from as load_decoder
 
-        check_same_encoder(ae.encoder, decoder_from, f"--decoder-from: {run}'s encoder")
-        load_decoder(decoder_from, ae.decoder)
+        load_decoder(decoder_from, ae)
     model = CDiT(cfg.cdit)
     model.load_state_dict(ckpt["ema"])
     if "distilled" in ckpt:

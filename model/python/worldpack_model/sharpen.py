@@ -59,11 +59,15 @@ def score(encoder: nn.Module, decoder: nn.Module, images: torch.Tensor) -> tuple
     return psnr(y, images), sharpness_ratio(y, images)
 
 
-def decoder_from(model_dir: Path, decoder: nn.Module) -> None:
-    """Loads a model folder's exported decoder into `decoder` (a committed
-    fine-tune continues from its graph), checked against the folder's reference."""
+def decoder_from(model_dir: Path, autoencoder: nn.Module) -> None:
+    """Loads a model folder's exported decoder into `autoencoder` (a committed
+    fine-tune continues from its graph, an export or a student takes a sharpened
+    one), checked against the folder's reference. The autoencoder's encoder
+    must be the folder's: a decoder fits only the latent space it was trained on."""
     from .recover import Graph, load_state
 
+    check_same_encoder(autoencoder.encoder, model_dir, "--decoder-from: the run's encoder")
+    decoder = autoencoder.decoder
     manifest = json.loads((model_dir / "manifest.json").read_text())
     load_state(decoder, [Graph(model_dir / manifest["autoencoder"]["decoder"]["file"])], "")
     ref = model_dir / "reference" / "decoder"
@@ -91,7 +95,7 @@ def sharpen_decoder(data: Path, val: Path | None, run: Path, steps: int, batch: 
     dev = pick_device(device)
     ae = load_autoencoder(run, dev)
     if start_from is not None and not (run / CHECKPOINT).exists():
-        decoder_from(start_from, ae.decoder)
+        decoder_from(start_from, ae)
         print(f"the decoder starts from {start_from}'s")
     encoder = ae.encoder.eval().requires_grad_(False)
     decoder = ae.decoder.train()
