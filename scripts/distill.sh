@@ -12,7 +12,8 @@
 #                                  # where it landed with the warp's colours (HOLE_FILL, 7; 0: off)
 #   ./scripts/distill.sh adversarial  # the served 1-step student fine-tuned with ADD's adversarial term
 #                                  # (distill --adversarial-weight ADV, 0.5) on frames from DECODER's decoder
-#                                  # (a model folder; default the committed sharper one); STEPS, MINUTES, BATCH (16)
+#                                  # (a model folder; default the committed sharper one); STEPS, MINUTES, BATCH (16),
+#                                  # ADV_CAP (the most the term's weight may reach; default none)
 #   ./scripts/distill.sh adversarial-export  # -> OUT (RUN/model), with DECODER's decoder and HEADS's fusion heads (a model folder)
 # RUN (runs/distill/<N>step; runs/distill/adversarial for those two) holds the run; PY runs `python -m worldpack_model`
 # (default ./scripts/model.sh, which sets up .venv-train).
@@ -61,9 +62,10 @@ case "${1:-}" in
     "${py[@]}" encode --data data/train120 --run "$run" --device "${DEVICE:-auto}"
     "${py[@]}" distill --data data/train120 --run "$run" --grid 999 --teacher-steps 10 --steps "${STEPS:-20000}" \
         --batch "${BATCH:-16}" --lr "${LR:-1e-4}" --ema 0.998 --device "${DEVICE:-auto}" --threads "${THREADS:-1}" \
-        --adversarial-weight "${ADV:-0.5}" --adversarial-start 200 --decoder-from "$decoder" ${MINUTES:+--minutes "$MINUTES"} ;;
+        --adversarial-weight "${ADV:-0.5}" --adversarial-start 200 --decoder-from "$decoder" ${MINUTES:+--minutes "$MINUTES"} \
+        ${ADV_CAP:+--adversarial-cap "$ADV_CAP"} ;;
   adversarial-export)
     "${py[@]}" export --run "$run" --policy worldpack --distilled 1 --layouts worldpack --data data/val --out "$out" \
         --half --decoder-from "$decoder" --fusion-from "${HEADS:-$decoder}" --threads "${THREADS:-1}" ;;
-  *) sed -n '2,17p' "$0"; exit 2 ;;
+  *) sed -n '2,19p' "$0"; exit 2 ;;
 esac

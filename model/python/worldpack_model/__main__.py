@@ -117,6 +117,9 @@ def main() -> None:
     p.add_argument("--decoder-from", type=Path,
                    help="a model folder whose decoder renders the frames the discriminator judges (the one the "
                         "student will be served with); default: the run's")
+    p.add_argument("--adversarial-cap", type=float,
+                   help="the most the adversarial term's weight (adaptive weight times --adversarial-weight) may "
+                        "reach; default: no cap")
 
     p = sub.add_parser("paper-scale", help="a model folder at the paper's shapes (224x224 frames, 4x28x28 latents, "
                        "844 vs 784 context tokens) with random seeded weights: --size paper (CDiT-B/2, SD-VAE-shaped "
@@ -260,7 +263,7 @@ def main() -> None:
         from . import distill
 
         distill.distill(a.data, a.run, a.policy, a.grid, a.teacher_steps, a.steps, a.batch, a.lr, a.ema, a.device, a.minutes,
-                        a.edge_weight, a.adversarial_weight, a.adversarial_start, a.decoder_from)
+                        a.edge_weight, a.adversarial_weight, a.adversarial_start, a.decoder_from, a.adversarial_cap)
 
 
 if __name__ == "__main__":

@@ -39,7 +39,9 @@ decoded by the same decoder. The decoder is the one the student will be
 served with (`decoder_from`, e.g. the sharpened one), frozen. The term's
 weight is VQGAN's adaptive one at the student's last layer, times
 `adversarial_weight`, from step `adversarial_start` on (the discriminator
-trains from the first step). Where ADD distils the teacher's score, this
+trains from the first step), at most `adversarial_cap`: when the
+discriminator wins outright its gradient at the last layer shrinks and the
+adaptive weight, a ratio of gradient norms, runs away. Where ADD distils the teacher's score, this
 keeps progressive distillation's target: the teacher here is a short
 deterministic sampler, whose landing point is cheap and exact."""
 
@@ -120,7 +122,8 @@ def teacher_segment(eps_fn, alpha_bar: torch.Tensor, x: torch.Tensor, start: tor
 
 def distill(data: Path, run: Path, policy: str, grid_text: str, teacher_steps: int, steps: int, batch: int, lr: float,
             ema_decay: float, device: str, minutes: float | None, edge_weight: float = 0.0,
-            adversarial_weight: float = 0.0, adversarial_start: int = 0, decoder_from: Path | None = None) -> None:
+            adversarial_weight: float = 0.0, adversarial_start: int = 0, decoder_from: Path | None = None,
+            adversarial_cap: float | None = None) -> None:
     cfg = run_config(run)
     dev = pick_device(device)
     grid = parse_grid(grid_text, cfg.diffusion.timesteps)
@@ -187,6 +190,7 @@ def distill(data: Path, run: Path, policy: str, grid_text: str, teacher_steps: i
         record["adversarial"] = {"method": "Adversarial Diffusion Distillation's adversarial term (Sauer et al. 2023): "
                                            "conditional PatchGAN on decoded frames, hinge loss, VQGAN's adaptive weight",
                                  "weight": adversarial_weight, "start": adversarial_start, "from_step": origin,
+                                 "cap": adversarial_cap,
                                  "decoder": str(decoder_from) if decoder_from else "the run's"}
     extra = lambda: dict(disc=disc.state_dict(), opt_d=opt_d.state_dict(), adversarial_origin=origin) if adversarial else {}
     checkpoint = lambda: save(ckpt, model=student.state_dict(), ema=ema.state_dict(), opt=opt.state_dict(), step=step,
@@ -229,6 +233,8 @@ def distill(data: Path, run: Path, policy: str, grid_text: str, teacher_steps: i
             if step - origin >= adversarial_start:
                 g_adv = -judge(image).mean()
                 weight = adversarial_weight * adaptive_weight(loss, g_adv, student.final.weight)
+                if adversarial_cap is not None:
+                    weight = weight.clamp(max=adversarial_cap)
                 loss = loss + weight * g_adv
         optimise(student, ema, opt, loss, ema_decay)
         if adversarial:
