@@ -12,6 +12,11 @@
 # train at once, one core each.
 #   ./scripts/doom.sh fusion               # its fusion head on ABA and ABCA training walks: the geometry model
 #   ./scripts/doom.sh eval                 # the held-out maps: every row with paired intervals (SUITE: data/doom-test)
+#   ./scripts/doom.sh student              # a 1-step student of the served geometry model, distilled with ADD's
+#                                          # adversarial term (distill --adversarial-weight ADV 0.5, from step 1,000,
+#                                          # capped at ADV_CAP 0.1) on frames from the served decoder; TRAIN
+#                                          # (data/doom-train100, as sharpen.sh data makes it), STEPS, MINUTES, BATCH (16),
+#                                          # RUN (runs/doom/student)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 threads="${THREADS:-1}"
@@ -87,5 +92,18 @@ PY
         --extra geometry_fused="$run/geometry_fused" --covisible geometry_fused \
         --against "${AGAINST:-baseline}" --strip geometry_fused_covisible,worldpack,baseline,reproject_fused \
         --out "$run/eval-$(basename "$suite")" "${@:2}" ;;
-  *) echo "usage: $0 data | autoencoder | baseline | worldpack | fusion | eval" >&2; exit 2 ;;
+  student)
+    # ADD trains the one-step student from the teacher's weights with both terms at once: the
+    # regression onto the teacher's 10-step landing point, and the discriminator once it has
+    # had 1,000 steps to learn what a real frame looks like.
+    s="${RUN:-$run/student}"
+    train="${TRAIN:-data/doom-train100}"
+    [ -f "$train/plans.json" ] || "$bin" plan --data "$train" --memory-need
+    [ -f "$s/cdit-worldpack.pt" ] || ./scripts/model.sh recover --model fixtures/doom/geometry_fused --run "$s"
+    ./scripts/model.sh encode --data "$train" --run "$s" --threads "$threads"
+    ./scripts/model.sh distill --data "$train" --run "$s" --grid 999 --teacher-steps 10 --steps "${STEPS:-20000}" \
+        --batch "${BATCH:-16}" --lr 1e-4 --ema 0.998 --threads "$threads" --adversarial-weight "${ADV:-0.5}" \
+        --adversarial-start 1000 --adversarial-cap "${ADV_CAP:-0.1}" --decoder-from fixtures/doom/geometry_fused \
+        "${minutes[@]}" ;;
+  *) echo "usage: $0 data | autoencoder | baseline | worldpack | fusion | eval | student" >&2; exit 2 ;;
 esac
