@@ -12,7 +12,7 @@
 #                                  # where it landed with the warp's colours (HOLE_FILL, 7; 0: off)
 #   ./scripts/distill.sh adversarial  # the served 1-step student fine-tuned with ADD's adversarial term
 #                                  # (distill --adversarial-weight ADV, 0.5) on frames from DECODER's decoder
-#                                  # (a model folder; default the committed sharper one); STEPS, MINUTES, BATCH (16),
+#                                  # (a model folder; default the served one's, the spectral-norm decoder); STEPS, MINUTES, BATCH (16),
 #                                  # ADV_CAP (the most the term's weight may reach; default none)
 #   ./scripts/distill.sh adversarial-export  # -> OUT (RUN/model), with DECODER's decoder and HEADS's fusion heads (a model folder)
 # RUN (runs/distill/<N>step; runs/distill/adversarial for those two) holds the run; PY runs `python -m worldpack_model`
@@ -27,7 +27,7 @@ run="${RUN:-runs/distill/${n}step}"
 out="${OUT:-fixtures/variants/worldpack_geometry_fused_${n}step}"
 # The adversarial student is a 1-step one, exported into its run until it earns a place in fixtures/.
 case "${1:-}" in adversarial*) run="${RUN:-runs/distill/adversarial}"; out="${OUT:-$run/model}" ;; esac
-decoder="${DECODER:-fixtures/variants/worldpack_geometry_fused_1step_sharp}"
+decoder="${DECODER:-fixtures/variants/worldpack_geometry_fused_1step}"
 read -r -a py <<<"${PY:-./scripts/model.sh}"
 case "${1:-}" in
   data)

@@ -6,9 +6,6 @@ return-leg PSNR and sharpness ratio), drawn with OpenCV (in the test venv):
 
     .venv/bin/python scripts/plot_speed.py -o docs/bench/speed.png \\
         --point "10 DDIM steps=docs/bench/walk-10step.json:runs/distill/eval-test/results.json:fused_covisible" ...
-
-A point already measured and written down (docs/benchmarks.md's tables) can be given
-by its figures instead, `--value "LABEL=MS:PSNR:SHARPNESS"`; points keep the order given.
 """
 
 import argparse
@@ -29,12 +26,6 @@ def point(spec):
     ms = one["p50_ms"][walk["stages"].index("total")]
     pooled = next(p for p in json.load(open(results))["pooled"] if p["row"] == row)
     return {"label": label, "ms": ms, "psnr": pooled["psnr"]["mean"], "sharpness": pooled["sharpness"]["mean"]}
-
-
-def value(spec):
-    label, rest = spec.split("=", 1)
-    ms, psnr, sharpness = (float(x) for x in rest.split(":"))
-    return {"label": label, "ms": ms, "psnr": psnr, "sharpness": sharpness}
 
 
 def panel(points, key, title):
@@ -80,13 +71,10 @@ def panel(points, key, title):
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--point", action="append", dest="points", type=point, default=[], help="LABEL=BENCH_JSON:RESULTS_JSON:ROW")
-    ap.add_argument("--value", action="append", dest="points", type=value, help="LABEL=MS:PSNR:SHARPNESS, figures already measured")
+    ap.add_argument("--point", action="append", required=True, help="LABEL=BENCH_JSON:RESULTS_JSON:ROW")
     ap.add_argument("-o", "--out", required=True)
     a = ap.parse_args()
-    if not a.points:
-        ap.error("at least one --point or --value")
-    points = a.points
+    points = [point(s) for s in a.point]
     img = np.hstack([panel(points, "psnr", "return-leg PSNR (dB), 48 trajectories"),
                      panel(points, "sharpness", "sharpness ratio (1 = the truth's edges)")])
     cv2.imwrite(a.out, img)
