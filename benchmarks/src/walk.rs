@@ -41,11 +41,11 @@ pub struct WalkRow {
 }
 
 /// Generated steps that turn the walk round, 10 degrees each.
-const TURN: usize = 18;
+pub(crate) const TURN: usize = 18;
 
 /// Exploration: forward, a slow left turn every 4th step; the turn: `TURN`
 /// steps of 10 degrees; the way back mirrors the exploration's turns.
-fn action(walk: &Walk, i: usize) -> Action {
+pub(crate) fn action(walk: &Walk, i: usize) -> Action {
     let yaw_deg = if i < walk.explore {
         if i.is_multiple_of(4) { 8.0 } else { 0.0 }
     } else if i < walk.explore + TURN {

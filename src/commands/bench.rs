@@ -113,6 +113,27 @@ pub enum Bench {
         #[arg(long)]
         json: bool,
     },
+    /// The same walk through the CPU provider and another (cuda): each frame's latent and picture compared, frame by frame.
+    Parity {
+        #[arg(long, default_value = "fixtures/variants/worldpack_geometry_fused_1step")]
+        model: PathBuf,
+        /// The provider set against the CPU's.
+        #[arg(long, value_parser = parse_provider)]
+        provider: model::Provider,
+        /// Sampler steps per generated frame (a distilled model: its own count).
+        #[arg(long, default_value_t = 10, value_parser = clap::value_parser!(u64).range(1..=1000))]
+        steps: u64,
+        /// Observed steps before the turn.
+        #[arg(long, default_value_t = 40, value_parser = clap::value_parser!(u64).range(1..=10_000))]
+        explore: u64,
+        /// Generated steps after the turn (the turn's own are generated too).
+        #[arg(long, default_value_t = 20, value_parser = clap::value_parser!(u64).range(1..=10_000))]
+        back: u64,
+        #[arg(long, default_value_t = 1)]
+        threads: usize,
+        #[arg(long)]
+        json: bool,
+    },
     /// The durable store: redb (what the server uses) against SQLite (WAL, full sync), one commit per frame.
     Store {
         #[arg(long, default_value_t = 500, value_parser = clap::value_parser!(u64).range(1..=1_000_000))]
@@ -150,6 +171,7 @@ impl Bench {
             Bench::Step { .. } => "bench step",
             Bench::Serve { .. } => "bench serve",
             Bench::Walk { .. } => "bench walk",
+            Bench::Parity { .. } => "bench parity",
             Bench::Store { .. } => "bench store",
             Bench::StepProbe { .. } => "bench step-probe",
             Bench::Render { .. } => "bench render",
@@ -196,6 +218,10 @@ impl Bench {
                 let o = benchmarks::walk::Options { steps: *steps as usize, method: *method, covisible: *covisible, sampled_latents: *sampled_latents,
                     walk_steps: *walk_steps as usize, explore: *explore as usize };
                 benchmarks::walk::run(model, runtime, &o, sessions, *json)
+            }
+            Bench::Parity { model, provider, steps, explore, back, threads, json } => {
+                let runtime = model::RuntimeOptions { provider: *provider, threads: *threads };
+                benchmarks::parity::run(model, runtime, *steps as usize, *explore as usize, *back as usize, *json)
             }
             Bench::Store { frames, json } => benchmarks::store::run(*frames as usize, *json),
             Bench::StepProbe { model, layout, provider, threads, calls } => {
