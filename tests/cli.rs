@@ -180,6 +180,26 @@ fn bench_serve_compares_http_with_the_library_call() {
 }
 
 #[test]
+fn bench_parity_of_the_cpu_provider_with_itself_is_exact() {
+    // The same walk twice through the CPU provider: every latent and picture must
+    // agree to the bit, or a provider's drift could not be told from the walk's own.
+    let fixture = concat!(env!("CARGO_MANIFEST_DIR"), "/fixtures/variants/worldpack_geometry_fused_1step");
+    let args = ["bench", "parity", "--model", fixture, "--provider", "cpu", "--explore", "6", "--back", "2", "--json"];
+    let (code, stdout, stderr) = worldpack(&args, "");
+    assert_eq!(code, 0, "{stderr}");
+    let r: serde_json::Value = serde_json::from_str(&stdout).unwrap();
+    let frames = r["frames"].as_array().unwrap();
+    let generated: Vec<&serde_json::Value> = frames.iter().filter(|f| f["generated"] == true).collect();
+    assert_eq!((frames.len(), generated.len()), (6 + 18 + 2, 18 + 2), "observed, then the turn and the way back generated");
+    assert!(frames.iter().all(|f| f["latent_max_abs"] == 0.0 && f["frame_max_abs"] == 0), "{stdout}");
+    assert_eq!(r["decoder_max_abs"], 0.0);
+    assert!(generated.iter().all(|f| f["truth_psnr_db_cpu"].as_f64().unwrap() > 5.0 && f["truth_psnr_db_cpu"] == f["truth_psnr_db_other"]));
+    let (code, _, stderr) = worldpack(&["bench", "parity", "--provider", "tpu"], "");
+    assert_eq!(code, 2);
+    assert!(stderr.contains("--provider"), "{stderr}");
+}
+
+#[test]
 fn bench_store_writes_and_reads_back_both_databases() {
     let (code, stdout, stderr) = worldpack(&["bench", "store", "--frames", "5", "--json"], "");
     assert_eq!(code, 0, "{stderr}");

@@ -25,8 +25,8 @@ pub struct FrameParity {
     pub latent_max_abs: f32,
     /// Largest absolute difference of the frame's 8-bit picture (0 for observed frames, which are the world's).
     pub frame_max_abs: u8,
-    /// PSNR of the provider's picture against the CPU's (dB; infinite when equal).
-    pub frame_psnr_db: f64,
+    /// PSNR of the provider's picture against the CPU's (dB, at most 100; generated frames).
+    pub frame_psnr_db: Option<f64>,
     /// Each one's PSNR against the world's true frame at that pose (generated frames).
     pub truth_psnr_db_cpu: Option<f64>,
     pub truth_psnr_db_other: Option<f64>,
@@ -77,13 +77,13 @@ pub fn run(model_dir: &Path, other: RuntimeOptions, steps: usize, explore: usize
         for i in 0..explore + TURN + back {
             let act = action(&walk, i);
             let generated = i >= explore;
-            let (mut frame_max_abs, mut frame_psnr_db, mut ta, mut tb) = (0u8, f64::INFINITY, None, None);
+            let (mut frame_max_abs, mut frame_psnr_db, mut ta, mut tb) = (0u8, None, None, None);
             if generated {
                 let oa = cpu.step(&mut a, &act, None, &sampler, None).map_err(fail)?;
                 let ob = oth.step(&mut b, &act, None, &sampler, None).map_err(fail)?;
                 let (pa, pb) = (rgb(&oa.png)?, rgb(&ob.png)?);
                 frame_max_abs = pa.iter().zip(&pb).map(|(x, y)| x.abs_diff(*y)).max().unwrap_or(0);
-                frame_psnr_db = eval::metrics::psnr(&pa, &pb);
+                frame_psnr_db = Some(eval::metrics::psnr(&pa, &pb));
                 ta = oa.truth.map(|t| t.psnr_db);
                 tb = ob.truth.map(|t| t.psnr_db);
             } else {
@@ -114,8 +114,8 @@ pub fn run(model_dir: &Path, other: RuntimeOptions, steps: usize, explore: usize
     println!("{:>5} {:>9} {:>11} {:>9} {:>10} {:>10} {:>10}", "step", "kind", "latent max", "frame max", "frame dB", "truth cpu", "truth oth");
     for f in &report.frames {
         let db = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.2}"));
-        println!("{:>5} {:>9} {:>11.2e} {:>9} {:>10.2} {:>10} {:>10}", f.step, if f.generated { "generated" } else { "observed" },
-                 f.latent_max_abs, f.frame_max_abs, f.frame_psnr_db, db(f.truth_psnr_db_cpu), db(f.truth_psnr_db_other));
+        println!("{:>5} {:>9} {:>11.2e} {:>9} {:>10} {:>10} {:>10}", f.step, if f.generated { "generated" } else { "observed" },
+                 f.latent_max_abs, f.frame_max_abs, db(f.frame_psnr_db), db(f.truth_psnr_db_cpu), db(f.truth_psnr_db_other));
     }
     Ok(())
 }

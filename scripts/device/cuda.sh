@@ -13,12 +13,20 @@
 # Every part has its own time limit, and each one's output and time go under $OUT.
 set -uo pipefail
 cd "$(dirname "$0")/../.."
+# The GPU machine has no zstd of its own; `pack.sh common` carries one with its libraries.
+zstd() {
+    local d
+    for d in .device/common/zstd "${STASH:-/root/worldpack-pieces}/common/zstd"; do
+        [ -x "$d/zstd" ] && { LD_LIBRARY_PATH="$d" "$d/zstd" "$@"; return; }
+    done
+    command zstd "$@"
+}
 stash="${STASH:-/root/worldpack-pieces}"
 mkdir -p "$stash"
 case "${1:-}" in
   stash)
-    for f in common/worldpack.zst common/fixtures.tar.zst ort/ort.tar.zst cuda/providers_cuda.so.zst; do
-        [ -f ".device/$f" ] && { mkdir -p "$stash/$(dirname "$f")"; cp ".device/$f" "$stash/$f"; }
+    for f in $(cd .device 2>/dev/null && ls -d common/zstd/* 2>/dev/null) common/worldpack.zst common/fixtures.tar.zst ort/ort.tar.zst cuda/providers_cuda.so.zst; do
+        [ -f ".device/$f" ] && { mkdir -p "$stash/$(dirname "$f")"; cp -p ".device/$f" "$stash/$f"; }
     done
     ls -R "$stash"; exit 0 ;;
   prepare|check) ;;

@@ -24,6 +24,9 @@ case "${1:-}" in
   common)
     cargo build --release --bin worldpack
     mkdir -p "$dev/common"
+    # The GPU machine has no zstd: this one travels with the libraries it links.
+    mkdir -p "$dev/common/zstd" && cp /usr/bin/zstd "$dev/common/zstd/"
+    ldd /usr/bin/zstd | awk '/=> \// && !/libc.so/ { print $3 }' | xargs -I{} cp -L {} "$dev/common/zstd/"
     strip -o "$dev/worldpack" target/release/worldpack
     zstd -19 -q -f "$dev/worldpack" -o "$dev/common/worldpack.zst" && rm "$dev/worldpack"
     tar -cf - fixtures/small fixtures/variants/worldpack_geometry_fused_1step fixtures/variants/worldpack_geometry_fused_1step_mse \
