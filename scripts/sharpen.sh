@@ -9,9 +9,10 @@
 #   ./scripts/sharpen.sh swap voxel|doom       # the served model with that decoder: runs/sharp/<world>/model
 #   ./scripts/sharpen.sh head voxel|doom       # the fusion heads retrained on the frames of SHARP (the model with the new
 #                                              # decoder; default runs/sharp/<world>/model): the frame kept with MSE + edges
-#                                              # (KEPT_STEPS; RUN/kept), and on voxel a pix2pix head for the frame shown
-#                                              # (conditional PatchGAN + MSE + edges; HEAD_STEPS, ADVERSARIAL, MINUTES;
-#                                              # RUN/head), paired with hole fill: RUN/head/model (Doom: one head, both frames)
+#                                              # (KEPT_STEPS; RUN/kept), and on voxel a head for the frame shown trained
+#                                              # with MSE alone, as served (HEAD_STEPS, MINUTES; ADVERSARIAL=W: a pix2pix
+#                                              # head instead; RUN/head), paired with hole fill: RUN/head/model
+#                                              # (Doom: one head, both frames)
 #   ./scripts/sharpen.sh eval voxel|doom       # it against the served model, paired (SUITE to change it;
 #                                              # CANDIDATE: another model folder than runs/sharp/<world>/model, OUT: its folder)
 # RUN: another run folder than runs/sharp/<world> (a fresh fine-tune beside a finished one).
@@ -89,8 +90,15 @@ keep_fusion_head(Path('fixtures/variants/worldpack_geometry_fused'), Path('runs/
       exit 0
     fi
     ./scripts/model.sh fusion-export --run "$run/kept" --model "$run/head/bare" --out "$run/kept/model" --data "$run/head/data"
-    ./scripts/model.sh fusion-train --data "$run/head/data" --run "$run/head" --steps "${HEAD_STEPS:-6000}" --lr 1e-3 \
-        --edge-weight 1 --adversarial-weight "${ADVERSARIAL:-0.5}" --threads "$threads" "${minutes[@]}"
+    # The frame shown: MSE alone, the served recipe (an edge in the wrong place costs it twice).
+    # ADVERSARIAL=W trains the pix2pix head instead (conditional PatchGAN + MSE + edges).
+    if [ -n "${ADVERSARIAL:-}" ]; then
+      ./scripts/model.sh fusion-train --data "$run/head/data" --run "$run/head" --steps "${HEAD_STEPS:-6000}" --lr 1e-3 \
+          --edge-weight 1 --adversarial-weight "$ADVERSARIAL" --threads "$threads" "${minutes[@]}"
+    else
+      ./scripts/model.sh fusion-train --data "$run/head/data" --run "$run/head" --steps "${HEAD_STEPS:-4000}" \
+          --threads "$threads" "${minutes[@]}"
+    fi
     ./scripts/model.sh fusion-export --run "$run/head" --model "$run/head/bare" --out "$run/head/shown" --data "$run/head/data"
     ./scripts/model.sh fusion-pair --kept "$run/kept/model" --shown "$run/head/shown" --out "$run/head/model" --hole-fill 7 \
         --data "$run/head/data" ;;
