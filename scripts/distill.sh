@@ -11,9 +11,11 @@
 #                                  # (the memory's context for the next frames), in the warp's holes near
 #                                  # where it landed with the warp's colours (HOLE_FILL, 7; 0: off)
 #   ./scripts/distill.sh adversarial  # the served 1-step student fine-tuned with ADD's adversarial term
-#                                  # (distill --adversarial-weight ADV, 0.5) on frames from DECODER's decoder
-#                                  # (a model folder; default the served one's, the spectral-norm decoder); STEPS, MINUTES, BATCH (16),
-#                                  # ADV_CAP (the most the term's weight may reach; default none)
+#                                  # (distill --adversarial-weight ADV, 0.5, from ADV_START, 200) on frames from DECODER's
+#                                  # decoder (a model folder; default the served one's, the spectral-norm decoder); STEPS,
+#                                  # MINUTES, BATCH (16), ADV_CAP (the most the term's weight may reach; default none),
+#                                  # TRAIN (data/train120); TEACHER (a model folder) and STUDENT (one to go on from; empty:
+#                                  # the teacher's weights, as ADD starts) for another world's model
 #   ./scripts/distill.sh adversarial-export  # -> OUT (RUN/model), with DECODER's decoder and HEADS's fusion heads (a model folder)
 # RUN (runs/distill/<N>step; runs/distill/adversarial for those two) holds the run; PY runs `python -m worldpack_model`
 # (default ./scripts/model.sh, which sets up .venv-train).
@@ -56,14 +58,15 @@ case "${1:-}" in
     data=(); [ -f "$run/fusion-data/truth.npy" ] && data=(--data "$run/fusion-data")
     "${py[@]}" fusion-pair --kept "$out" --shown "$teacher" --out "$out" --hole-fill "${HOLE_FILL:-7}" "${data[@]}" ;;
   adversarial)
-    student=fixtures/variants/worldpack_geometry_fused_1step
-    [ -f "$run/cdit-worldpack.pt" ] || "${py[@]}" recover --model "$teacher" --run "$run"
-    [ -f "$run/distilled-worldpack-1.pt" ] || "${py[@]}" recover --model "$student" --run "$run"
-    "${py[@]}" encode --data data/train120 --run "$run" --device "${DEVICE:-auto}"
-    "${py[@]}" distill --data data/train120 --run "$run" --grid 999 --teacher-steps 10 --steps "${STEPS:-20000}" \
+    train="${TRAIN:-data/train120}"
+    student="${STUDENT-fixtures/variants/worldpack_geometry_fused_1step}"
+    [ -f "$run/cdit-worldpack.pt" ] || "${py[@]}" recover --model "${TEACHER:-$teacher}" --run "$run"
+    [ -f "$run/distilled-worldpack-1.pt" ] || [ -z "$student" ] || "${py[@]}" recover --model "$student" --run "$run"
+    "${py[@]}" encode --data "$train" --run "$run" --device "${DEVICE:-auto}"
+    "${py[@]}" distill --data "$train" --run "$run" --grid 999 --teacher-steps 10 --steps "${STEPS:-20000}" \
         --batch "${BATCH:-16}" --lr "${LR:-1e-4}" --ema 0.998 --device "${DEVICE:-auto}" --threads "${THREADS:-1}" \
-        --adversarial-weight "${ADV:-0.5}" --adversarial-start 200 --decoder-from "$decoder" ${MINUTES:+--minutes "$MINUTES"} \
-        ${ADV_CAP:+--adversarial-cap "$ADV_CAP"} ;;
+        --adversarial-weight "${ADV:-0.5}" --adversarial-start "${ADV_START:-200}" --decoder-from "$decoder" \
+        ${MINUTES:+--minutes "$MINUTES"} ${ADV_CAP:+--adversarial-cap "$ADV_CAP"} ;;
   adversarial-export)
     "${py[@]}" export --run "$run" --policy worldpack --distilled 1 --layouts worldpack --data data/val --out "$out" \
         --half --decoder-from "$decoder" --fusion-from "${HEADS:-$decoder}" --threads "${THREADS:-1}" ;;

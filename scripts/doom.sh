@@ -99,11 +99,7 @@ PY
     s="${RUN:-$run/student}"
     train="${TRAIN:-data/doom-train100}"
     [ -f "$train/plans.json" ] || "$bin" plan --data "$train" --memory-need
-    [ -f "$s/cdit-worldpack.pt" ] || ./scripts/model.sh recover --model fixtures/doom/geometry_fused --run "$s"
-    ./scripts/model.sh encode --data "$train" --run "$s" --threads "$threads"
-    ./scripts/model.sh distill --data "$train" --run "$s" --grid 999 --teacher-steps 10 --steps "${STEPS:-20000}" \
-        --batch "${BATCH:-16}" --lr 1e-4 --ema 0.998 --threads "$threads" --adversarial-weight "${ADV:-0.5}" \
-        --adversarial-start 1000 --adversarial-cap "${ADV_CAP:-0.1}" --decoder-from fixtures/doom/geometry_fused \
-        "${minutes[@]}" ;;
+    RUN="$s" TRAIN="$train" TEACHER=fixtures/doom/geometry_fused STUDENT= DECODER=fixtures/doom/geometry_fused \
+        ADV="${ADV:-0.5}" ADV_START=1000 ADV_CAP="${ADV_CAP:-0.1}" THREADS="$threads" ./scripts/distill.sh adversarial ;;
   *) echo "usage: $0 data | autoencoder | baseline | worldpack | fusion | eval | student" >&2; exit 2 ;;
 esac

@@ -47,10 +47,9 @@ for c in $configs; do
 done
 for c in $configs; do
     IFS=: read -r name weight cap <<< "$c"
-    "$py" -m worldpack_model distill --data "$data" --run "$work/runs/$name" --grid 999 --teacher-steps 10 --steps 1000000 \
-        --batch "$batch" --lr 1e-4 --ema 0.998 --device "$device" --threads 4 --adversarial-weight "$weight" \
-        --adversarial-start 200 --adversarial-cap "$cap" --decoder-from "$work/runs/sharp/voxel-sn/model" --minutes "$minutes" \
-        > "$work/$name.log" 2>&1 &
+    RUN="$work/runs/$name" TRAIN="$data" DECODER="$work/runs/sharp/voxel-sn/model" ADV="$weight" ADV_CAP="$cap" \
+        BATCH="$batch" STEPS=1000000 MINUTES="$minutes" DEVICE="$device" THREADS=4 PY="$py -m worldpack_model" \
+        ./scripts/distill.sh adversarial > "$work/$name.log" 2>&1 &
 done
 wait
 echo "trained: $(elapsed)"
