@@ -13,14 +13,7 @@
 # Every part has its own time limit, and each one's output and time go under $OUT.
 set -uo pipefail
 cd "$(dirname "$0")/../.."
-# The GPU machine has no zstd of its own; `pack.sh common` carries one with its libraries.
-zstd() {
-    local d
-    for d in .device/common/zstd "${STASH:-/root/worldpack-pieces}/common/zstd"; do
-        [ -x "$d/zstd" ] && { LD_LIBRARY_PATH="$d" "$d/zstd" "$@"; return; }
-    done
-    command zstd "$@"
-}
+. scripts/device/zstd.sh
 stash="${STASH:-/root/worldpack-pieces}"
 mkdir -p "$stash"
 case "${1:-}" in

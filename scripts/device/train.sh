@@ -11,14 +11,7 @@
 #   CONFIGS: name:adversarial-weight:cap, space-separated (default below); BATCH (64)
 set -uo pipefail
 cd "$(dirname "$0")/../.."
-# The GPU machine has no zstd of its own; `pack.sh common` carries one with its libraries.
-zstd() {
-    local d
-    for d in .device/common/zstd "${STASH:-/root/worldpack-pieces}/common/zstd"; do
-        [ -x "$d/zstd" ] && { LD_LIBRARY_PATH="$d" "$d/zstd" "$@"; return; }
-    done
-    command zstd "$@"
-}
+. scripts/device/zstd.sh
 : "${OUT:?set OUT to the folder whose files come back}"
 py="${PYTHON:-python3}" minutes="${MINUTES:-5}" batch="${BATCH:-64}" device="${DEVICE:-cuda}"
 configs="${CONFIGS:-w05:2:0.05 w15:2:0.15 w40:2:0.4}"
