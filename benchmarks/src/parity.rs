@@ -90,18 +90,31 @@ pub fn run(model_dir: &Path, other: RuntimeOptions, steps: usize, explore: usize
                 cpu.step_observed(&mut a, &act).map_err(fail)?;
                 oth.step_observed(&mut b, &act).map_err(fail)?;
             }
-            let (la, lb) = (&a.frames.last().expect("a step pushes a frame").latent, &b.frames.last().expect("a step pushes a frame").latent);
+            let (la, lb) =
+                (&a.frames.last().expect("a step pushes a frame").latent, &b.frames.last().expect("a step pushes a frame").latent);
             if generated && decoder_max_abs.is_none() {
                 let l = &cpu.model()?.manifest().autoencoder.latent;
                 let latent = Tensor::new(vec![1, l.channels, l.height, l.width], la.clone());
                 let (da, db) = (cpu.model()?.decode(&latent)?, oth.model()?.decode(&latent)?);
                 decoder_max_abs = Some(max_abs(&da.data, &db.data));
             }
-            frames.push(FrameParity { step: i, generated, latent_max_abs: max_abs(la, lb), frame_max_abs, frame_psnr_db,
-                                      truth_psnr_db_cpu: ta, truth_psnr_db_other: tb });
+            frames.push(FrameParity {
+                step: i,
+                generated,
+                latent_max_abs: max_abs(la, lb),
+                frame_max_abs,
+                frame_psnr_db,
+                truth_psnr_db_cpu: ta,
+                truth_psnr_db_other: tb,
+            });
         }
-        Ok(Report { model: model_dir.display().to_string(), provider: oth.model()?.provider().to_string(), steps: sampler.len(),
-                    decoder_max_abs: decoder_max_abs.unwrap_or(0.0), frames })
+        Ok(Report {
+            model: model_dir.display().to_string(),
+            provider: oth.model()?.provider().to_string(),
+            steps: sampler.len(),
+            decoder_max_abs: decoder_max_abs.unwrap_or(0.0),
+            frames,
+        })
     })();
     let _ = std::fs::remove_dir_all(&dir);
     let report = result?;
@@ -109,13 +122,26 @@ pub fn run(model_dir: &Path, other: RuntimeOptions, steps: usize, explore: usize
         println!("{}", serde_json::to_string_pretty(&report)?);
         return Ok(());
     }
-    println!("model {}, {} against the CPU provider, {} sampler step(s); decoder alone: max |diff| {:.2e}\n",
-             report.model, report.provider, report.steps, report.decoder_max_abs);
-    println!("{:>5} {:>9} {:>11} {:>9} {:>10} {:>10} {:>10}", "step", "kind", "latent max", "frame max", "frame dB", "truth cpu", "truth oth");
+    println!(
+        "model {}, {} against the CPU provider, {} sampler step(s); decoder alone: max |diff| {:.2e}\n",
+        report.model, report.provider, report.steps, report.decoder_max_abs
+    );
+    println!(
+        "{:>5} {:>9} {:>11} {:>9} {:>10} {:>10} {:>10}",
+        "step", "kind", "latent max", "frame max", "frame dB", "truth cpu", "truth oth"
+    );
     for f in &report.frames {
         let db = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.2}"));
-        println!("{:>5} {:>9} {:>11.2e} {:>9} {:>10} {:>10} {:>10}", f.step, if f.generated { "generated" } else { "observed" },
-                 f.latent_max_abs, f.frame_max_abs, db(f.frame_psnr_db), db(f.truth_psnr_db_cpu), db(f.truth_psnr_db_other));
+        println!(
+            "{:>5} {:>9} {:>11.2e} {:>9} {:>10} {:>10} {:>10}",
+            f.step,
+            if f.generated { "generated" } else { "observed" },
+            f.latent_max_abs,
+            f.frame_max_abs,
+            db(f.frame_psnr_db),
+            db(f.truth_psnr_db_cpu),
+            db(f.truth_psnr_db_other)
+        );
     }
     Ok(())
 }
