@@ -16,7 +16,8 @@
 #                                  # MINUTES, BATCH (16), ADV_CAP (the most the term's weight may reach; default none),
 #                                  # TRAIN (data/train120); TEACHER (a model folder) and STUDENT (one to go on from; empty:
 #                                  # the teacher's weights, as ADD starts) for another world's model
-#   ./scripts/distill.sh adversarial-export  # -> OUT (RUN/model), with DECODER's decoder and HEADS's fusion heads (a model folder)
+#   ./scripts/distill.sh adversarial-export  # -> OUT (RUN/model), with DECODER's decoder and HEADS's fusion heads (a model folder);
+#                                  # VAL (data/val): the suite its manifest's metrics are measured on
 # RUN (runs/distill/<N>step; runs/distill/adversarial for those two) holds the run; PY runs `python -m worldpack_model`
 # (default ./scripts/model.sh, which sets up .venv-train).
 set -euo pipefail
@@ -68,7 +69,7 @@ case "${1:-}" in
         --adversarial-weight "${ADV:-0.5}" --adversarial-start "${ADV_START:-200}" --decoder-from "$decoder" \
         ${MINUTES:+--minutes "$MINUTES"} ${ADV_CAP:+--adversarial-cap "$ADV_CAP"} ;;
   adversarial-export)
-    "${py[@]}" export --run "$run" --policy worldpack --distilled 1 --layouts worldpack --data data/val --out "$out" \
+    "${py[@]}" export --run "$run" --policy worldpack --distilled 1 --layouts worldpack --data "${VAL:-data/val}" --out "$out" \
         --half --decoder-from "$decoder" --fusion-from "${HEADS:-$decoder}" --threads "${THREADS:-1}" ;;
   *) sed -n '2,19p' "$0"; exit 2 ;;
 esac
