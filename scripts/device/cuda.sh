@@ -44,7 +44,9 @@ if [ "$1" = prepare ]; then
     mkdir -p "$paper" && paper_weights > "$paper/prepare.log" 2>&1
     echo "paper-scale weights: rc $? in $(( $(date +%s) - t0 )) s"; du -sh "$paper/model"; exit 0
 fi
-zstd -d -q -c "$(piece common/fixtures.tar.zst)" | tar -xf - || { note "no fixtures"; exit 1; }
+# The fixtures unpack beside the binary, never over a checkout's own.
+fixtures=/tmp/worldpack-bin
+zstd -d -q -c "$(piece common/fixtures.tar.zst)" | tar -xf - -C "$fixtures" || { note "no fixtures"; exit 1; }
 zstd -d -q -c "$(piece ort/ort.tar.zst)" | tar -xf - -C "$lib" || { note "no onnxruntime"; exit 1; }
 zstd -d -q -f "$(piece cuda/providers_cuda.so.zst)" -o "$lib/libonnxruntime_providers_cuda.so" || { note "no CUDA provider"; exit 1; }
 : "${OUT:?set OUT to the folder whose files come back}"
@@ -62,11 +64,13 @@ part() {  # name, time limit (s), command...: stdout to $OUT/name.json, stderr t
     timeout "$limit" "$@" > "$OUT/$name.json" 2>> "$log"
     note "$name: rc $? in $(( $(date +%s) - s )) s"
 }
-served=fixtures/variants/worldpack_geometry_fused_1step
+served=$fixtures/fixtures/variants/worldpack_geometry_fused_1step
 part parity-served 90 "$bin" bench parity --model "$served" --provider "$provider" --json
-part parity-small 90 "$bin" bench parity --model fixtures/small --provider "$provider" --steps 10 --json
+part parity-small 90 "$bin" bench parity --model "$fixtures/fixtures/small" --provider "$provider" --steps 10 --json
 part walk-cuda 120 "$bin" bench walk --model "$served" --provider "$provider" --sessions 1,4,16 --json
 part walk-cpu 60 "$bin" bench walk --model "$served" --sessions 1 --json
-part serve-cuda 120 "$bin" bench serve --provider "$provider" --sessions 16 --batch-window-ms 5 --json
+part serve-cuda 120 "$bin" bench serve --model "$fixtures/fixtures/small" --provider "$provider" --sessions 16 --batch-window-ms 5 --json
+[ "${PAPER:-1}" = 1 ] || { note "done (no paper scale)"; exit 0; }
+[ -f "$paper/model/manifest.json" ] || { paper_weights >> "$log" 2>&1; note "paper-scale weights made"; }
 part paper-cuda 150 "$bin" bench step --model "$paper/model" --provider "$provider" --calls 20 --steps 10 --json
 note "done"
