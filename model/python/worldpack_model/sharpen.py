@@ -59,6 +59,15 @@ def score(encoder: nn.Module, decoder: nn.Module, images: torch.Tensor) -> tuple
     return psnr(y, images), sharpness_ratio(y, images)
 
 
+def reference_gap(module: nn.Module, ref: Path, given: str, expected: str) -> float:
+    """The largest difference between `module` run on a reference folder's input
+    array and its output array. Run on the CPU, where the reference was made:
+    a GPU's TF32 convolutions alone differ by about 1e-3."""
+    with torch.no_grad():
+        got = copy.deepcopy(module).cpu()(torch.from_numpy(np.load(ref / given))).numpy()
+    return float(np.abs(got - np.load(ref / expected)).max())
+
+
 def decoder_from(model_dir: Path, autoencoder: nn.Module) -> None:
     """Loads a model folder's exported decoder into `autoencoder` (a committed
     fine-tune continues from its graph, an export or a student takes a sharpened
@@ -71,10 +80,7 @@ def decoder_from(model_dir: Path, autoencoder: nn.Module) -> None:
     manifest = json.loads((model_dir / "manifest.json").read_text())
     load_state(decoder, [Graph(model_dir / manifest["autoencoder"]["decoder"]["file"])], "")
     ref = model_dir / "reference" / "decoder"
-    with torch.no_grad():
-        # On the CPU: a GPU's TF32 convolutions alone differ by about 1e-3.
-        got = copy.deepcopy(decoder).cpu()(torch.from_numpy(np.load(ref / "latent.npy"))).numpy()
-    worst = float(np.abs(got - np.load(ref / "image.npy")).max())
+    worst = reference_gap(decoder, ref, "latent.npy", "image.npy")
     if worst > 1e-3:
         raise SystemExit(f"--decoder-from: the rebuilt decoder differs from {ref} by {worst:.2e}")
 
@@ -82,9 +88,7 @@ def decoder_from(model_dir: Path, autoencoder: nn.Module) -> None:
 def check_same_encoder(encoder: nn.Module, model_dir: Path, what: str) -> None:
     """Refuses to put a decoder and an encoder together that were not trained
     on the same latent space: `encoder` must reproduce `model_dir`'s encoder reference."""
-    with torch.no_grad():
-        got = copy.deepcopy(encoder).cpu()(torch.from_numpy(np.load(model_dir / "reference" / "encoder" / "image.npy"))).numpy()
-    worst = float(np.abs(got - np.load(model_dir / "reference" / "encoder" / "latent.npy")).max())
+    worst = reference_gap(encoder, model_dir / "reference" / "encoder", "image.npy", "latent.npy")
     if worst > 1e-3:
         raise SystemExit(f"{what} is not {model_dir}'s (latents differ by {worst:.2e}); "
                          "a decoder trained on one would not fit the other's latents")
