@@ -12,7 +12,7 @@
 # train at once, one core each.
 #   ./scripts/doom.sh fusion               # its fusion head on ABA and ABCA training walks: the geometry model
 #   ./scripts/doom.sh eval                 # the held-out maps: every row with paired intervals (SUITE: data/doom-test)
-#   ./scripts/doom.sh student              # a 1-step student of the served geometry model, distilled with ADD's
+#   ./scripts/doom.sh student              # a 1-step student of the 10-step geometry model, distilled with ADD's
 #                                          # adversarial term (distill --adversarial-weight ADV 0.5, from step 1,000,
 #                                          # capped at ADV_CAP 0.1) on frames from the served decoder; TRAIN
 #                                          # (data/doom-train100, as sharpen.sh data makes it), STEPS, MINUTES, BATCH (16),
@@ -99,7 +99,7 @@ PY
     s="${RUN:-$run/student}"
     train="${TRAIN:-data/doom-train100}"
     [ -f "$train/plans.json" ] || "$bin" plan --data "$train" --memory-need
-    RUN="$s" TRAIN="$train" TEACHER=fixtures/doom/geometry_fused STUDENT= DECODER=fixtures/doom/geometry_fused \
+    RUN="$s" TRAIN="$train" TEACHER=fixtures/doom/geometry_fused_10step STUDENT= DECODER=fixtures/doom/geometry_fused_10step \
         ADV="${ADV:-0.5}" ADV_START=1000 ADV_CAP="${ADV_CAP:-0.1}" THREADS="$threads" ./scripts/distill.sh adversarial ;;
   *) echo "usage: $0 data | autoencoder | baseline | worldpack | fusion | eval | student" >&2; exit 2 ;;
 esac

@@ -2,7 +2,7 @@
 depth, poses, intrinsics), generate the way back, and score every generated
 frame against the engine's own frame at that pose.
 
-    ./scripts/serve.sh --model fixtures/doom/geometry_fused --policy worldpack --method ddim --steps 10 --covisible &
+    ./scripts/serve.sh --model fixtures/doom/geometry_fused --policy worldpack --covisible &
     python clients/python/examples/doom_walk.py --out doom_walk.png
 
 Needs the Doom tool's requirements (doom/requirements.txt: vizdoom, opencv) and

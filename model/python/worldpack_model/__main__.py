@@ -153,6 +153,8 @@ def main() -> None:
                    help="a conditional PatchGAN's term on top of VQGAN's adaptive weight (pix2pix; 0: no discriminator)")
     p.add_argument("--adversarial-start", type=int, default=500,
                    help="the step from which the head feels the discriminator (it trains from step 0)")
+    p.add_argument("--init-from", type=Path,
+                   help="a fusion-train run folder whose head this run starts from (a fresh optimiser, step 0)")
     p.add_argument("--minutes", type=float, help="stop (and checkpoint) after this much wall time")
     p.add_argument("--threads", type=int, default=0, help="torch CPU threads (0: torch's default)")
 
@@ -219,7 +221,7 @@ def main() -> None:
 
         fusion.train(a.data, a.run, a.steps, a.batch, a.lr, a.minutes, a.width, edge_weight=a.edge_weight,
                      edge_landed=a.edge_landed, adversarial_weight=a.adversarial_weight,
-                     adversarial_start=a.adversarial_start)
+                     adversarial_start=a.adversarial_start, init_from=a.init_from)
     elif a.stage == "fusion-export":
         from . import fusion
 

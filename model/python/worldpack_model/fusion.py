@@ -153,7 +153,7 @@ def psnr_db(a: torch.Tensor, b: torch.Tensor) -> float:
 
 def train(data: list[Path], run: Path, steps: int, batch: int, lr: float, minutes: float | None, width: int, seed: int = 0,
           edge_weight: float = 0.0, edge_landed: float = 1.0, adversarial_weight: float = 0.0,
-          adversarial_start: int = 500) -> None:
+          adversarial_start: int = 500, init_from: Path | None = None) -> None:
     """Trains the head on `data` (`worldpack fusion-data` folders); the last
     tenth of each folder's examples (its suite's last trajectories) is held
     out and scored against the decoder's frame, the reference and their
@@ -167,7 +167,12 @@ def train(data: list[Path], run: Path, steps: int, batch: int, lr: float, minute
     the landed mask it was made from, under the hinge loss, its term scaled by
     VQGAN's adaptive weight (losses.py) from `adversarial_start` on. Where the
     warp has no pixels the regression terms settle for the mean of what could
-    be there; the discriminator asks for something that could be."""
+    be there; the discriminator asks for something that could be.
+
+    `init_from` (a run folder) starts a new run from that run's head: a
+    pix2pix head fine-tuned from a regression one, its discriminator warming
+    up for `adversarial_start` steps while the head holds still under the
+    regression terms it already meets."""
     run.mkdir(parents=True, exist_ok=True)
     folders = [load_examples(d) for d in data]
     fit = [[x[: len(x) - max(1, len(x) // 10)] for x in f] for f in folders]
@@ -185,10 +190,18 @@ def train(data: list[Path], run: Path, steps: int, batch: int, lr: float, minute
     opt_d = torch.optim.Adam(disc.parameters(), lr=lr, betas=betas) if adversarial else None
     ckpt = run / "fusion.pt"
     step = resume(ckpt, head, opt, "the fusion head", key="head")
+    if init_from is not None and not step:
+        start = torch.load(init_from / "fusion.pt", weights_only=False)
+        if start["config"]["width"] != width:
+            raise SystemExit(f"--init-from: {init_from} has a head of width {start['config']['width']}, not {width}")
+        head.load_state_dict(start["head"])
+        print(f"starting from the head of {init_from} (its step {start['step']})")
     config = {"width": width, "dilations": list(head.dilations), "data": [str(d) for d in data], "examples": n, "held_out": n - cut,
               "edge_weight": edge_weight, "edge_landed": edge_landed}
     if adversarial:
         config |= {"adversarial_weight": adversarial_weight, "adversarial_start": adversarial_start}
+    if init_from is not None:
+        config["init_from"] = str(init_from)
     if step:
         state = torch.load(ckpt, weights_only=False)
         if state["config"] != config:
