@@ -6,10 +6,16 @@ return-leg PSNR and sharpness ratio), drawn with OpenCV (in the test venv):
 
     .venv/bin/python scripts/plot_speed.py -o docs/bench/speed.png \\
         --point "10 DDIM steps=docs/bench/walk-10step.json:runs/distill/eval-test/results.json:fused_covisible" ...
+
+With `--record FILE` (docs/bench/speed-points.json) the chart draws every point the
+record holds, each `--point` added or replacing the one of its label, and the record is
+written back with each point's sources: eval outputs live in git-ignored run folders, so a
+point measured once stays on the chart after its run folder is gone.
 """
 
 import argparse
 import json
+import os
 
 import cv2
 import numpy as np
@@ -25,7 +31,8 @@ def point(spec):
     one = next(r for r in walk["rows"] if r["sessions"] == 1)
     ms = one["p50_ms"][walk["stages"].index("total")]
     pooled = next(p for p in json.load(open(results))["pooled"] if p["row"] == row)
-    return {"label": label, "ms": ms, "psnr": pooled["psnr"]["mean"], "sharpness": pooled["sharpness"]["mean"]}
+    return {"label": label, "ms": ms, "psnr": pooled["psnr"]["mean"], "sharpness": pooled["sharpness"]["mean"],
+            "bench": bench, "results": results, "row": row}
 
 
 def panel(points, key, title):
@@ -71,10 +78,19 @@ def panel(points, key, title):
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--point", action="append", required=True, help="LABEL=BENCH_JSON:RESULTS_JSON:ROW")
+    ap.add_argument("--point", action="append", default=[], help="LABEL=BENCH_JSON:RESULTS_JSON:ROW")
+    ap.add_argument("--record", help="a JSON list of points measured before: drawn, updated and written back")
     ap.add_argument("-o", "--out", required=True)
     a = ap.parse_args()
-    points = [point(s) for s in a.point]
+    points = json.load(open(a.record)) if a.record and os.path.exists(a.record) else []
+    for p in map(point, a.point):
+        points = [q for q in points if q["label"] != p["label"]] + [p]
+    if not points:
+        ap.error("nothing to draw: give --point, or --record with points in it")
+    if a.record:
+        with open(a.record, "w") as f:
+            json.dump(points, f, indent=1)
+            f.write("\n")
     img = np.hstack([panel(points, "psnr", "return-leg PSNR (dB), 48 trajectories"),
                      panel(points, "sharpness", "sharpness ratio (1 = the truth's edges)")])
     cv2.imwrite(a.out, img)
