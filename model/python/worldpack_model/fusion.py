@@ -130,6 +130,15 @@ def head_of(model: Path, part: str = "kept") -> tuple[FusionHead, dict]:
     return head.eval(), spec
 
 
+def trained_head(run: Path) -> tuple[FusionHead, dict]:
+    """The head a `fusion-train` run saved (run/fusion.pt), and that checkpoint."""
+    state = torch.load(run / "fusion.pt", weights_only=False)
+    cfg = state["config"]
+    head = FusionHead(cfg["width"], tuple(cfg["dilations"]))
+    head.load_state_dict(state["head"])
+    return head, state
+
+
 def architecture(head: FusionHead) -> str:
     """How a manifest describes one head."""
     return (f"{len(head.dilations)} dilated 3x3 convolutions of width {head.width} (dilations {list(head.dilations)}); "
@@ -169,10 +178,8 @@ def train(data: list[Path], run: Path, steps: int, batch: int, lr: float, minute
     warp has no pixels the regression terms settle for the mean of what could
     be there; the discriminator asks for something that could be.
 
-    `init_from` (a run folder) starts a new run from that run's head: a
-    pix2pix head fine-tuned from a regression one, its discriminator warming
-    up for `adversarial_start` steps while the head holds still under the
-    regression terms it already meets."""
+    `init_from` (a run folder) starts a new run from that run's head, with a
+    fresh optimiser: a pix2pix head fine-tuned from a regression one."""
     run.mkdir(parents=True, exist_ok=True)
     folders = [load_examples(d) for d in data]
     fit = [[x[: len(x) - max(1, len(x) // 10)] for x in f] for f in folders]
@@ -191,11 +198,11 @@ def train(data: list[Path], run: Path, steps: int, batch: int, lr: float, minute
     ckpt = run / "fusion.pt"
     step = resume(ckpt, head, opt, "the fusion head", key="head")
     if init_from is not None and not step:
-        start = torch.load(init_from / "fusion.pt", weights_only=False)
-        if start["config"]["width"] != width:
-            raise SystemExit(f"--init-from: {init_from} has a head of width {start['config']['width']}, not {width}")
-        head.load_state_dict(start["head"])
-        print(f"starting from the head of {init_from} (its step {start['step']})")
+        start, saved = trained_head(init_from)
+        if architecture(start) != architecture(head):
+            raise SystemExit(f"--init-from: {init_from}'s head is {architecture(start)}, not {architecture(head)}")
+        head.load_state_dict(start.state_dict())
+        print(f"starting from the head of {init_from} (its step {saved['step']})")
     config = {"width": width, "dilations": list(head.dilations), "data": [str(d) for d in data], "examples": n, "held_out": n - cut,
               "edge_weight": edge_weight, "edge_landed": edge_landed}
     if adversarial:
@@ -303,10 +310,8 @@ def export(run: Path, model: Path, out: Path, data: Path | None = None) -> None:
     `fusion.onnx`, its manifest entry and references for the parity tests."""
     from .export import to_onnx
 
-    state = torch.load(run / "fusion.pt", weights_only=False)
+    head, state = trained_head(run)
     cfg = state["config"]
-    head = FusionHead(cfg["width"], tuple(cfg["dilations"]))
-    head.load_state_dict(state["head"])
     head.eval()
     manifest = json.loads((model / "manifest.json").read_text())
     if "warp" not in manifest["denoiser"]:
