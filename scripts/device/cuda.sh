@@ -18,7 +18,8 @@ stash="${STASH:-/root/worldpack-pieces}"
 mkdir -p "$stash"
 case "${1:-}" in
   stash)
-    for f in $(cd .device 2>/dev/null && ls -d common/zstd/* 2>/dev/null) common/worldpack.zst common/fixtures.tar.zst ort/ort.tar.zst cuda/providers_cuda.so.zst; do
+    for f in $(cd .device 2>/dev/null && ls -d common/zstd/* 2>/dev/null) common/worldpack.zst common/fixtures.tar.zst ort/ort.tar.zst cuda/providers_cuda.so.zst \
+             $(cd .device 2>/dev/null && ls data-*/data.tar.zst 2>/dev/null); do
         [ -f ".device/$f" ] && { mkdir -p "$stash/$(dirname "$f")"; cp -p ".device/$f" "$stash/$f"; }
     done
     ls -R "$stash"; exit 0 ;;

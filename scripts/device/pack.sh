@@ -5,6 +5,9 @@
 #
 #   ./scripts/device/pack.sh common   # .device/common: the stripped release worldpack (zstd), the fixtures the checks read
 #   ./scripts/device/pack.sh train    # .device/train: a student run's weights to go on from (RUN, EMA and discriminator only)
+#                                     #   and the decoder it trains against (DECODER, a model folder)
+#   ./scripts/device/pack.sh data     # .device/data-1, -2, ...: a dataset to train on (DATA), in pieces of at most PIECE_MB
+#                                     #   (45) compressed, one call each, for a world the GPU machine cannot simulate (Doom)
 #   ./scripts/device/pack.sh cuda     # .device/ort, .device/cuda: ONNX Runtime 1.31.1's CUDA build, sm_90 code only
 #   ./scripts/device/pack.sh slim     # take fixtures/ and docs/ out of git's index (they stay on disk) so they do not travel
 #   ./scripts/device/pack.sh restore  # put them back (git reset); run it before any commit
@@ -49,8 +52,23 @@ for k in ("model", "opt"):
 torch.save(s, f"{out}/distilled-worldpack-1.pt")
 print(f"student at step {s['step']}")
 PY
-    tar -cf - -C "$(dirname "$0")/../.." runs/sharp/voxel-sn/model | zstd -19 -q -f -o "$dev/train/decoder.tar.zst"
+    # The decoder travels as decoder/ whatever its folder here is called.
+    tar -cf - -C "${DECODER:-runs/sharp/voxel-sn/model}" --transform 's,^\.,decoder,' . | zstd -19 -q -f -o "$dev/train/decoder.tar.zst"
     echo "$dev/train: $(size "$dev/train")" ;;
+  data)
+    data="${DATA:?set DATA to the dataset folder (e.g. data/doom-train100)}"
+    [ -f "$data/plans.json" ] || { echo "$data has no plans.json: run worldpack plan --data $data --memory-need first" >&2; exit 1; }
+    rm -rf "$dev"/data-* && mkdir -p "$dev/data-1"
+    # Pieces by trajectory, cut when the raw bytes reach PIECE_MB times the ratio zstd -19 gets on these frames (about 4).
+    budget=$(( ${PIECE_MB:-45} * 4 * 1000000 )) n=1 used=0 list=("$data/index.json" "$data/plans.json")
+    pack_piece() { tar -cf - --transform "s,^${data%/},data," "${list[@]}" | zstd -19 --long=27 -T1 -q -f -o "$dev/data-$n/data.tar.zst"; }
+    for t in "$data"/*/; do
+        b=$(du -sb "$t" | cut -f1)
+        if [ "$used" -gt 0 ] && [ $(( used + b )) -gt "$budget" ]; then pack_piece; n=$((n + 1)) used=0 list=(); mkdir -p "$dev/data-$n"; fi
+        list+=("${t%/}") used=$(( used + b ))
+    done
+    pack_piece
+    for d in "$dev"/data-*; do echo "$d: $(size "$d")"; done ;;
   cuda)
     wheel=onnxruntime_gpu-1.31.1-cp312-cp312-manylinux_2_28_x86_64.whl
     mkdir -p "$dev/ort" "$dev/cuda" "$dev/wheel"
@@ -71,5 +89,5 @@ PY
     git reset -q -- fixtures docs
     sed -i '\#^/fixtures/$#d; \#^/docs/$#d' "$exclude"
     git status --short | head ;;
-  *) echo "usage: $0 common | train | cuda | slim | restore" >&2; exit 2 ;;
+  *) echo "usage: $0 common | train | data | cuda | slim | restore" >&2; exit 2 ;;
 esac

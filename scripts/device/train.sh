@@ -2,12 +2,17 @@
 # Runs ON the lent GPU machine (no cargo there; torch is): goes on with the
 # adversarial 1-step student that `pack.sh train` packed, several weightings at
 # once on the one GPU, for MINUTES, and writes each one's checkpoint (EMA,
-# discriminator) and log under $OUT. Data are made there by the carried
-# release binary: TRAJ training trajectories (seed 0; the first 120 are
+# discriminator) and log under $OUT. The data are the pieces `pack.sh data`
+# made, when earlier calls stashed them (`cuda.sh stash`) or this one carries
+# them (Doom: the GPU machine has no ViZDoom); else the carried release binary
+# makes TRAJ voxel training trajectories there (seed 0; the first 120 are
 # data/train120's).
 #
 #   device run, carry .device/common .device/train:
 #     MINUTES=5 ./scripts/device/train.sh
+#   Doom, three calls: carry .device/common/zstd .device/data-1: ./scripts/device/cuda.sh stash
+#                      carry .device/data-2: ./scripts/device/cuda.sh stash
+#                      carry .device/data-3 .device/train: CONFIGS=... MINUTES=8 ./scripts/device/train.sh
 #   CONFIGS: name:adversarial-weight:cap, space-separated (default below); BATCH (64)
 set -uo pipefail
 cd "$(dirname "$0")/../.."
@@ -19,13 +24,23 @@ work="${WORK:-/tmp/worldpack-train}"
 t0=$(date +%s)
 elapsed() { echo "$(( $(date +%s) - t0 )) s"; }
 mkdir -p "$work" && export PYTHONPATH="$PWD/model/python"
-bin="$work/worldpack"
-zstd -d -q -f .device/common/worldpack.zst -o "$bin" && chmod +x "$bin"
 zstd -d -q -c .device/train/decoder.tar.zst | tar -xf - -C "$work"
 data="$work/data"
-[ -f "$data/index.json" ] || "$bin" sim dataset --trajectories "${TRAJ:-240}" --out "$data" > "$work/sim.log"
-"$bin" plan --data "$data" --memory-need > /dev/null
-echo "data: $(jq -r .frames "$data/index.json" 2>/dev/null || grep -m1 '"frames"' "$data/index.json") frames, $(elapsed)"
+stash="${STASH:-/root/worldpack-pieces}"
+pieces=$( { ls -d .device/data-* "$stash"/data-* 2>/dev/null || true; } | xargs -rn1 basename | sort -u)
+if [ -n "$pieces" ]; then
+    for p in $pieces; do  # this call's piece, else the one an earlier call stashed
+        f=".device/$p/data.tar.zst"; [ -f "$f" ] || f="$stash/$p/data.tar.zst"
+        zstd -d -q -c "$f" | tar -xf - -C "$work" || { echo "could not unpack $f"; exit 1; }
+    done
+    [ -f "$data/plans.json" ] || { echo "the data pieces have no plans.json: $pieces"; exit 1; }
+elif [ ! -f "$data/index.json" ]; then
+    bin="$work/worldpack"
+    zstd -d -q -f .device/common/worldpack.zst -o "$bin" && chmod +x "$bin"
+    "$bin" sim dataset --trajectories "${TRAJ:-240}" --out "$data" > "$work/sim.log"
+    "$bin" plan --data "$data" --memory-need > /dev/null
+fi
+echo "data: $(jq -r '.frames // .total_frames' "$data/index.json" 2>/dev/null || grep -m1 '"frames"' "$data/index.json") frames, $(elapsed)"
 first=
 for c in $configs; do
     name="${c%%:*}"; run="$work/runs/$name"
@@ -40,7 +55,7 @@ for c in $configs; do
 done
 for c in $configs; do
     IFS=: read -r name weight cap <<< "$c"
-    RUN="$work/runs/$name" TRAIN="$data" DECODER="$work/runs/sharp/voxel-sn/model" ADV="$weight" ADV_CAP="$cap" \
+    RUN="$work/runs/$name" TRAIN="$data" DECODER="$work/decoder" ADV="$weight" ADV_CAP="$cap" \
         BATCH="$batch" STEPS=1000000 MINUTES="$minutes" DEVICE="$device" THREADS=4 PY="$py -m worldpack_model" \
         ./scripts/distill.sh adversarial > "$work/$name.log" 2>&1 &
 done
