@@ -177,6 +177,8 @@ def main() -> None:
     p.add_argument("--data", type=Path, help="a fusion-data folder whose last examples become the references")
     p.add_argument("--hole-fill", type=int, default=0, help="an odd window K: in the warp's holes within K // 2 pixels of "
                    "where it landed, the kept frame's K x K mean becomes the warp's colours diffused into the hole (0: off)")
+    p.add_argument("--hole-detail", type=int, default=0, help="an odd window K: in the warp's holes the frame shown "
+                   "takes the decoded frame's detail beyond its K x K local mean (0: off)")
 
     p = sub.add_parser("sharpen-decoder", help="fine-tune run/autoencoder.pt's decoder for sharp frames, the encoder "
                        "(so the latent space) frozen (sharpen.py; resumes from run/decoder-sharp.pt)")
@@ -233,7 +235,7 @@ def main() -> None:
     elif a.stage == "fusion-pair":
         from . import fusion
 
-        fusion.pair(a.kept, a.shown, a.out, a.data, a.hole_fill)
+        fusion.pair(a.kept, a.shown, a.out, a.data, a.hole_fill, a.hole_detail)
     elif a.stage == "sharpen-decoder":
         from . import sharpen
 

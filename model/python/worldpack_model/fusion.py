@@ -71,17 +71,22 @@ class HeadPair(nn.Module):
     different losses win each: MSE for the one, MSE with the gradient
     difference term, which keeps edges, for the other. `hole_fill` K > 0:
     the kept frame's holes next to where the warp landed take the warp's
-    colours (`fill_holes_from_warp`)."""
+    colours (`fill_holes_from_warp`). `hole_detail` K > 0: the frame shown
+    takes the decoded frame's detail in the warp's holes
+    (`detail_in_holes`)."""
 
-    def __init__(self, shown: FusionHead, kept: FusionHead, hole_fill: int = 0):
+    def __init__(self, shown: FusionHead, kept: FusionHead, hole_fill: int = 0, hole_detail: int = 0):
         super().__init__()
-        self.shown, self.kept, self.hole_fill = shown, kept, hole_fill
+        self.shown, self.kept, self.hole_fill, self.hole_detail = shown, kept, hole_fill, hole_detail
 
     def forward(self, predicted, reference, landed):
         kept = self.kept(predicted, reference, landed)
         if self.hole_fill:
             kept = fill_holes_from_warp(kept, reference, landed, self.hole_fill)
-        return self.shown(predicted, reference, landed), kept
+        shown = self.shown(predicted, reference, landed)
+        if self.hole_detail:
+            shown = detail_in_holes(shown, predicted, landed, self.hole_detail)
+        return shown, kept
 
 
 def fill_holes_from_warp(frame, reference, landed, k: int):
@@ -99,6 +104,20 @@ def fill_holes_from_warp(frame, reference, landed, k: int):
     diffused = pool(reference * landed) / (near + 1e-3)
     reach = (near > 1e-3).float()
     return frame + (diffused - pool(frame)) * (1 - landed) * reach
+
+
+def detail_in_holes(frame, predicted, landed, k: int):
+    """`frame` whose detail (what its k x k local mean leaves) in the warp's
+    holes is the decoded frame's instead, its local mean kept: detail
+    transfer between a base and a detail layer (Petschnigg et al. 2004,
+    Eisemann & Durand 2004).
+
+    Where the warp has no pixels a head trained for MSE paints the mean of
+    what could be there, and the decoded frame, the student's sample, has
+    the edges. The head's local mean keeps the colours MSE gets right; the
+    decoded frame's detail is what a frame there looks like."""
+    pool = lambda x: F.avg_pool2d(x, k, stride=1, padding=k // 2, count_include_pad=False)
+    return frame + ((predicted - pool(predicted)) - (frame - pool(frame))) * (1 - landed)
 
 
 def head_of(model: Path, part: str = "kept") -> tuple[FusionHead, dict]:
@@ -352,13 +371,15 @@ def export(run: Path, model: Path, out: Path, data: Path | None = None) -> None:
     print(f"wrote {out} ({manifest['fusion']['parameters']} fusion parameters)")
 
 
-def pair(kept: Path, shown: Path, out: Path, data: Path | None = None, hole_fill: int = 0) -> None:
+def pair(kept: Path, shown: Path, out: Path, data: Path | None = None, hole_fill: int = 0, hole_detail: int = 0) -> None:
     """A copy of the model folder `kept` at `out` whose head is a `HeadPair`:
-    the frame shown is `shown`'s head's, the frame the memory keeps is
-    `kept`'s own head's (the graph's second output, `kept`), its holes
-    filled from the warp when `hole_fill` (an odd window) is set."""
-    if hole_fill and (hole_fill < 3 or hole_fill % 2 == 0):
-        raise SystemExit(f"--hole-fill: an odd window of at least 3 pixels, or 0 for none; got {hole_fill}")
+    the frame shown is `shown`'s head's, with the decoded frame's detail in
+    the warp's holes when `hole_detail` (an odd window) is set; the frame
+    the memory keeps is `kept`'s own head's (the graph's second output,
+    `kept`), its holes filled from the warp when `hole_fill` is set."""
+    for flag, k in (("--hole-fill", hole_fill), ("--hole-detail", hole_detail)):
+        if k and (k < 3 or k % 2 == 0):
+            raise SystemExit(f"{flag}: an odd window of at least 3 pixels, or 0 for none; got {k}")
     from .export import to_onnx
     import onnx
     import tempfile
@@ -373,7 +394,7 @@ def pair(kept: Path, shown: Path, out: Path, data: Path | None = None, hole_fill
     with tempfile.TemporaryDirectory() as tmp:
         staged = Path(tmp) / out.name
         shutil.copytree(kept, staged)
-        heads = HeadPair(shown_head, kept_head, hole_fill).eval()
+        heads = HeadPair(shown_head, kept_head, hole_fill, hole_detail).eval()
         args = reference_images(data, h, w)
         outputs = ("image", "kept")
         onnx.save(to_onnx(heads, args, list(INPUTS), list(outputs)), staged / kept_spec["file"])
@@ -386,11 +407,13 @@ def pair(kept: Path, shown: Path, out: Path, data: Path | None = None, hole_fill
                                                          meaning="the frame the memory keeps (re-encoded as later frames' context), RGB")]
         spec["architecture"] = f"two heads on the same inputs, one for the frame shown and one for the frame kept; each: {kept_spec['architecture']}" + (
             f"; the kept frame's {hole_fill}x{hole_fill} local mean in the warp's holes replaced by the warp's colours diffused into them"
-            if hole_fill else "")
+            if hole_fill else "") + (
+            f"; the frame shown takes the decoded frame's detail (beyond its {hole_detail}x{hole_detail} local mean) in the warp's holes"
+            if hole_detail else "")
         spec["parameters"] = kept_spec["parameters"] + shown_spec["parameters"]
         spec["pair"] = {"shown": {"model": shown_spec.get("model", shown.name), "trained": shown_spec.get("trained")},
                         "kept": {"model": kept_spec.get("model", kept.name), "trained": kept_spec.get("trained")},
-                        "hole_fill": hole_fill}
+                        "hole_fill": hole_fill, "hole_detail": hole_detail}
         manifest["name"] = out.name
         manifest["fusion"] = spec
         (staged / "manifest.json").write_text(json.dumps(manifest, indent=1))
