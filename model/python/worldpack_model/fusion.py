@@ -80,10 +80,10 @@ class HeadPair(nn.Module):
         self.shown, self.kept, self.hole_fill, self.hole_detail = shown, kept, hole_fill, hole_detail
 
     def forward(self, predicted, reference, landed):
-        kept = self.kept(predicted, reference, landed)
-        if self.hole_fill:
-            kept = fill_holes_from_warp(kept, reference, landed, self.hole_fill)
-        shown = self.shown(predicted, reference, landed)
+        head = self.kept(predicted, reference, landed)
+        kept = fill_holes_from_warp(head, reference, landed, self.hole_fill) if self.hole_fill else head
+        # One head for both frames (the same module twice) runs once.
+        shown = head if self.shown is self.kept else self.shown(predicted, reference, landed)
         if self.hole_detail:
             shown = detail_in_holes(shown, predicted, landed, self.hole_detail)
         return shown, kept
@@ -394,7 +394,9 @@ def pair(kept: Path, shown: Path, out: Path, data: Path | None = None, hole_fill
     with tempfile.TemporaryDirectory() as tmp:
         staged = Path(tmp) / out.name
         shutil.copytree(kept, staged)
-        heads = HeadPair(shown_head, kept_head, hole_fill, hole_detail).eval()
+        same = architecture(shown_head) == architecture(kept_head) and all(
+            torch.equal(a, b) for a, b in zip(shown_head.state_dict().values(), kept_head.state_dict().values()))
+        heads = HeadPair(kept_head if same else shown_head, kept_head, hole_fill, hole_detail).eval()
         args = reference_images(data, h, w)
         outputs = ("image", "kept")
         onnx.save(to_onnx(heads, args, list(INPUTS), list(outputs)), staged / kept_spec["file"])
@@ -405,12 +407,13 @@ def pair(kept: Path, shown: Path, out: Path, data: Path | None = None, hole_fill
         spec = {k: v for k, v in kept_spec.items() if k not in ("trained", "architecture", "parameters", "model")}
         spec["outputs"] = [kept_spec["outputs"][0], dict(kept_spec["outputs"][0], name="kept",
                                                          meaning="the frame the memory keeps (re-encoded as later frames' context), RGB")]
-        spec["architecture"] = f"two heads on the same inputs, one for the frame shown and one for the frame kept; each: {kept_spec['architecture']}" + (
+        spec["architecture"] = (f"one head for both frames: {kept_spec['architecture']}" if same else
+                                f"two heads on the same inputs, one for the frame shown and one for the frame kept; each: {kept_spec['architecture']}") + (
             f"; the kept frame's {hole_fill}x{hole_fill} local mean in the warp's holes replaced by the warp's colours diffused into them"
             if hole_fill else "") + (
             f"; the frame shown takes the decoded frame's detail (beyond its {hole_detail}x{hole_detail} local mean) in the warp's holes"
             if hole_detail else "")
-        spec["parameters"] = kept_spec["parameters"] + shown_spec["parameters"]
+        spec["parameters"] = kept_spec["parameters"] + (0 if same else shown_spec["parameters"])
         spec["pair"] = {"shown": {"model": shown_spec.get("model", shown.name), "trained": shown_spec.get("trained")},
                         "kept": {"model": kept_spec.get("model", kept.name), "trained": kept_spec.get("trained")},
                         "hole_fill": hole_fill, "hole_detail": hole_detail}
