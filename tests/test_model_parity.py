@@ -127,6 +127,16 @@ def detail_in_holes(frame, predicted, landed, k):
     return frame + ((predicted - box_mean(predicted, k)) - (frame - box_mean(frame, k))) * (1 - landed)
 
 
+def hole_case(model, rule, landed_rows):
+    """A head pair's manifest entry, its window for `rule` (hole_fill or
+    hole_detail), the frame size, and a warp that landed on the top rows only."""
+    spec = json.loads((model / "manifest.json").read_text())["fusion"]
+    h, w = spec["inputs"][0]["shape"][2:]
+    landed = np.zeros((1, 1, h, w), np.float32)
+    landed[:, :, :landed_rows] = 1
+    return spec, spec["pair"][rule], (h, w), landed
+
+
 DETAILED = [m for m in PAIRED if json.loads((m / "manifest.json").read_text())["fusion"]["pair"].get("hole_detail")]
 
 
@@ -138,11 +148,7 @@ def test_a_head_pairs_hole_detail_keeps_the_decoded_texture_in_holes(model):
     the decoded frame's local means only, which carry almost none of the
     checkerboard: it keeps all but 0.02 of it (measured when written: 0.006
     for the Doom model's pair; its head alone, the frame kept, loses 0.054)."""
-    spec = json.loads((model / "manifest.json").read_text())["fusion"]
-    k = spec["pair"]["hole_detail"]
-    h, w = spec["inputs"][0]["shape"][2:]
-    landed = np.zeros((1, 1, h, w), np.float32)
-    landed[:, :, :32] = 1
+    spec, k, (h, w), landed = hole_case(model, "hole_detail", landed_rows=32)
     reference = np.full((1, 3, h, w), 0.1, np.float32)
     sign = (np.indices((h, w)).sum(0) % 2 * 2 - 1).astype(np.float32)
     predicted = np.broadcast_to(-0.2 + 0.3 * sign * (np.arange(h)[:, None] >= 32), (1, 3, h, w)).astype(np.float32)
@@ -162,11 +168,7 @@ def test_a_head_pairs_hole_fill_keeps_a_bright_ground_bright(model):
     the landed ground the kept frame takes the ground's brightness; deeper in
     the hole it stays the head's (the own head alone keeps the band as dark
     as the rows below it)."""
-    spec = json.loads((model / "manifest.json").read_text())["fusion"]
-    k = spec["pair"]["hole_fill"]
-    h, w = spec["inputs"][0]["shape"][2:]
-    landed = np.zeros((1, 1, h, w), np.float32)
-    landed[:, :, :40] = 1
+    spec, k, (h, w), landed = hole_case(model, "hole_fill", landed_rows=40)
     reference = np.full((1, 3, h, w), 0.8, np.float32)
     reference[:, :, 40:] = -0.6  # the fused reference's unlanded pixels are not the world's: the fill must not use them
     predicted = np.full((1, 3, h, w), 0.8, np.float32)
