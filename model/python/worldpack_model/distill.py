@@ -41,7 +41,11 @@ weight is VQGAN's adaptive one at the student's last layer, times
 `adversarial_weight`, from step `adversarial_start` on (the discriminator
 trains from the first step), at most `adversarial_cap`: when the
 discriminator wins outright its gradient at the last layer shrinks and the
-adaptive weight, a ratio of gradient norms, runs away. Where ADD distils the teacher's score, this
+adaptive weight, a ratio of gradient norms, runs away. `standardise_judged`: the
+discriminator judges frames (and the warp beside them) standardised by the real frames'
+mean and spread; a spectral-normalised discriminator moves its logits at most as far as
+its input moves, and on dark, low-contrast frames the real and generated patches lie
+closer than its hinge margin. Where ADD distils the teacher's score, this
 keeps progressive distillation's target: the teacher here is a short
 deterministic sampler, whose landing point is cheap and exact."""
 
@@ -123,7 +127,7 @@ def teacher_segment(eps_fn, alpha_bar: torch.Tensor, x: torch.Tensor, start: tor
 def distill(data: Path, run: Path, policy: str, grid_text: str, teacher_steps: int, steps: int, batch: int, lr: float,
             ema_decay: float, device: str, minutes: float | None, edge_weight: float = 0.0,
             adversarial_weight: float = 0.0, adversarial_start: int = 0, decoder_from: Path | None = None,
-            adversarial_cap: float | None = None) -> None:
+            adversarial_cap: float | None = None, standardise_judged: bool = False) -> None:
     cfg = run_config(run)
     dev = pick_device(device)
     grid = parse_grid(grid_text, cfg.diffusion.timesteps)
@@ -162,11 +166,17 @@ def distill(data: Path, run: Path, policy: str, grid_text: str, teacher_steps: i
         load_optimiser(opt, saved, ckpt)
         step = saved["step"]
         origin = saved.get("adversarial_origin", step)
-        if adversarial and "disc" in saved:
+        judged = saved.get("judged_scale")  # (mean, std) the saved discriminator's inputs were standardised by
+        if adversarial and "disc" in saved and (judged is not None) == standardise_judged:
             disc.load_state_dict(saved["disc"])
             opt_d.load_state_dict(saved["opt_d"])
+        elif adversarial and "disc" in saved:
+            # A discriminator trained on the other kind of input would judge these frames by the wrong scale.
+            print(f"a fresh discriminator: {ckpt.name}'s judged {'standardised' if judged else 'raw'} frames")
+            judged, origin = None, step
         print(f"resuming {ckpt.name} at step {step}")
-
+    else:
+        judged = None
     layout = LAYOUTS[policy]
     source = wdata.PlannedLatents(data, run / "latents", policy, layout, memory_focus, warp=cfg.cdit.warp)
     decoded = edge_weight > 0 or adversarial
@@ -175,6 +185,16 @@ def distill(data: Path, run: Path, policy: str, grid_text: str, teacher_steps: i
         from .sharpen import decoder_from as load_decoder
 
         load_decoder(decoder_from, autoencoder)
+    if adversarial and standardise_judged and judged is None:
+        # The real frames' mean and spread, from one batch of them, fixed for the run: spectral
+        # normalisation bounds how far the discriminator's logits move per unit of input, so on
+        # dark, low-contrast frames (Doom's: std 0.19 in [-1, 1]) real and generated patches
+        # lie too close for its hinge margin; standardised, they lie as far apart as on any world.
+        with torch.no_grad():
+            probe = torch.from_numpy(source.batch(np.random.default_rng(5000), batch).target).to(dev)
+            frames = autoencoder.decoder(probe / autoencoder.scale)
+        judged = (frames.mean().item(), frames.std().item())
+        print(f"the discriminator judges frames standardised by mean {judged[0]:.3f}, std {judged[1]:.3f}")
     alpha_bar = torch.tensor(Schedule(cfg.diffusion).alphas_cumprod, dtype=torch.float32, device=dev)
     augment = ContextAugmenter(recipe, source, layout.rates, alpha_bar, cfg.cdit.context_noise, 3000 + step, dev)
     rng = np.random.default_rng(4000 + step)
@@ -190,9 +210,10 @@ def distill(data: Path, run: Path, policy: str, grid_text: str, teacher_steps: i
         record["adversarial"] = {"method": "Adversarial Diffusion Distillation's adversarial term (Sauer et al. 2023): "
                                            "conditional PatchGAN on decoded frames, hinge loss, VQGAN's adaptive weight",
                                  "weight": adversarial_weight, "start": adversarial_start, "from_step": origin,
-                                 "cap": adversarial_cap,
+                                 "cap": adversarial_cap, "judged_scale": judged,
                                  "decoder": str(decoder_from) if decoder_from else "the run's"}
-    extra = lambda: dict(disc=disc.state_dict(), opt_d=opt_d.state_dict(), adversarial_origin=origin) if adversarial else {}
+    extra = lambda: dict(disc=disc.state_dict(), opt_d=opt_d.state_dict(), adversarial_origin=origin,
+                         judged_scale=judged) if adversarial else {}
     checkpoint = lambda: save(ckpt, model=student.state_dict(), ema=ema.state_dict(), opt=opt.state_dict(), step=step,
                               policy=policy, memory_focus=memory_focus, recipe=recipe.to_json(), distilled=record,
                               init_from=str(teacher_path), plans_query=source.plans_query,
@@ -227,9 +248,11 @@ def distill(data: Path, run: Path, policy: str, grid_text: str, teacher_steps: i
             loss = loss + edge_weight * gradient_difference(image, image_target)
         d_loss = weight = torch.tensor(0.0)
         if adversarial:
-            condition = torch.cat([(warped.permute(0, 3, 1, 2).float() / 127.5 - 1.0) * landed[:, None],
+            mean, std = judged or (0.0, 1.0)
+            scaled = lambda image: (image - mean) / std
+            condition = torch.cat([scaled(warped.permute(0, 3, 1, 2).float() / 127.5 - 1.0) * landed[:, None],
                                    landed[:, None].float()], dim=1)
-            judge = lambda frame: disc(torch.cat([frame, condition], dim=1))
+            judge = lambda frame: disc(torch.cat([scaled(frame), condition], dim=1))
             if step - origin >= adversarial_start:
                 g_adv = -judge(image).mean()
                 weight = adversarial_weight * adaptive_weight(loss, g_adv, student.final.weight)
