@@ -123,6 +123,9 @@ def main() -> None:
     p.add_argument("--standardise-judged", action="store_true",
                    help="the discriminator judges frames standardised by the real frames' mean and standard "
                         "deviation (measured on the first batch), not raw [-1, 1] values: for dark, low-contrast worlds")
+    p.add_argument("--judge-holes", action="store_true",
+                   help="weight each discriminator patch (in both terms) by its share of the warp's holes, where "
+                        "real and generated frames differ")
 
     p = sub.add_parser("paper-scale", help="a model folder at the paper's shapes (224x224 frames, 4x28x28 latents, "
                        "844 vs 784 context tokens) with random seeded weights: --size paper (CDiT-B/2, SD-VAE-shaped "
@@ -271,7 +274,7 @@ def main() -> None:
 
         distill.distill(a.data, a.run, a.policy, a.grid, a.teacher_steps, a.steps, a.batch, a.lr, a.ema, a.device, a.minutes,
                         a.edge_weight, a.adversarial_weight, a.adversarial_start, a.decoder_from, a.adversarial_cap,
-                        a.standardise_judged)
+                        a.standardise_judged, a.judge_holes)
 
 
 if __name__ == "__main__":

@@ -45,7 +45,10 @@ adaptive weight, a ratio of gradient norms, runs away. `standardise_judged`: the
 discriminator judges frames (and the warp beside them) standardised by the real frames'
 mean and spread; a spectral-normalised discriminator moves its logits at most as far as
 its input moves, and on dark, low-contrast frames the real and generated patches lie
-closer than its hinge margin. Where ADD distils the teacher's score, this
+closer than its hinge margin. `judge_holes`: both terms weight each
+discriminator patch by its share of the warp's holes (plus a floor of
+0.05): where the warp landed, real and generated frames are nearly the same
+and the patches there teach it nothing. Where ADD distils the teacher's score, this
 keeps progressive distillation's target: the teacher here is a short
 deterministic sampler, whose landing point is cheap and exact."""
 
@@ -66,7 +69,7 @@ from . import data as wdata
 from .cdit import CDiT
 from .config import LAYOUTS
 from .diffusion import Schedule
-from .losses import PatchDiscriminator, adaptive_weight, gradient_difference, hinge_discriminator
+from .losses import PatchDiscriminator, adaptive_weight, gradient_difference, hinge_discriminator, patch_mean
 from .recipe import ContextAugmenter, Recipe
 from .train import load_autoencoder, load_optimiser, log, optimise, pick_device, run_config, save
 from .warp import batch_warp_pixels, warp_input
@@ -127,7 +130,7 @@ def teacher_segment(eps_fn, alpha_bar: torch.Tensor, x: torch.Tensor, start: tor
 def distill(data: Path, run: Path, policy: str, grid_text: str, teacher_steps: int, steps: int, batch: int, lr: float,
             ema_decay: float, device: str, minutes: float | None, edge_weight: float = 0.0,
             adversarial_weight: float = 0.0, adversarial_start: int = 0, decoder_from: Path | None = None,
-            adversarial_cap: float | None = None, standardise_judged: bool = False) -> None:
+            adversarial_cap: float | None = None, standardise_judged: bool = False, judge_holes: bool = False) -> None:
     cfg = run_config(run)
     dev = pick_device(device)
     grid = parse_grid(grid_text, cfg.diffusion.timesteps)
@@ -210,7 +213,7 @@ def distill(data: Path, run: Path, policy: str, grid_text: str, teacher_steps: i
         record["adversarial"] = {"method": "Adversarial Diffusion Distillation's adversarial term (Sauer et al. 2023): "
                                            "conditional PatchGAN on decoded frames, hinge loss, VQGAN's adaptive weight",
                                  "weight": adversarial_weight, "start": adversarial_start, "from_step": origin,
-                                 "cap": adversarial_cap, "judged_scale": judged,
+                                 "cap": adversarial_cap, "judged_scale": judged, "judged_by_holes": judge_holes,
                                  "decoder": str(decoder_from) if decoder_from else "the run's"}
     extra = lambda: dict(disc=disc.state_dict(), opt_d=opt_d.state_dict(), adversarial_origin=origin,
                          judged_scale=judged) if adversarial else {}
@@ -253,8 +256,12 @@ def distill(data: Path, run: Path, policy: str, grid_text: str, teacher_steps: i
             condition = torch.cat([scaled(warped.permute(0, 3, 1, 2).float() / 127.5 - 1.0) * landed[:, None],
                                    landed[:, None].float()], dim=1)
             judge = lambda frame: disc(torch.cat([scaled(frame), condition], dim=1))
+            patches = None
+            if judge_holes:  # each patch by its share of the warp's holes (a floor keeps the rest in play)
+                patches = lambda logits: F.adaptive_avg_pool2d(1.0 - landed[:, None].float(), logits.shape[-2:]) + 0.05
             if step - origin >= adversarial_start:
-                g_adv = -judge(image).mean()
+                fake = judge(image)
+                g_adv = -patch_mean(fake, patches(fake) if patches else None)
                 weight = adversarial_weight * adaptive_weight(loss, g_adv, student.final.weight)
                 if adversarial_cap is not None:
                     weight = weight.clamp(max=adversarial_cap)
@@ -263,7 +270,8 @@ def distill(data: Path, run: Path, policy: str, grid_text: str, teacher_steps: i
         if adversarial:
             with torch.no_grad():
                 real = autoencoder.decoder(x0 / autoencoder.scale)
-            d_loss = hinge_discriminator(judge(real), judge(image.detach()))
+            real_logits = judge(real)
+            d_loss = hinge_discriminator(real_logits, judge(image.detach()), patches(real_logits) if patches else None)
             opt_d.zero_grad(set_to_none=True)
             d_loss.backward()
             opt_d.step()

@@ -46,9 +46,19 @@ class PatchDiscriminator(nn.Module):
         return self.net(image)
 
 
-def hinge_discriminator(real_logits: torch.Tensor, fake_logits: torch.Tensor) -> torch.Tensor:
-    """The hinge loss of a discriminator (Lim & Ye 2017, as VQGAN trains it)."""
-    return F.relu(1.0 - real_logits).mean() + F.relu(1.0 + fake_logits).mean()
+def hinge_discriminator(real_logits: torch.Tensor, fake_logits: torch.Tensor,
+                        patch_weight: torch.Tensor | None = None) -> torch.Tensor:
+    """The hinge loss of a discriminator (Lim & Ye 2017, as VQGAN trains it);
+    `patch_weight` (broadcast to the logits) weights each patch's share."""
+    return patch_mean(F.relu(1.0 - real_logits), patch_weight) + patch_mean(F.relu(1.0 + fake_logits), patch_weight)
+
+
+def patch_mean(logits: torch.Tensor, patch_weight: torch.Tensor | None = None) -> torch.Tensor:
+    """The mean over a PatchGAN's logits, weighted per patch when `patch_weight` is given."""
+    if patch_weight is None:
+        return logits.mean()
+    w = patch_weight.expand_as(logits)
+    return (logits * w).sum() / w.sum()
 
 
 def adaptive_weight(reconstruction: torch.Tensor, adversarial: torch.Tensor, last: torch.Tensor) -> torch.Tensor:
