@@ -159,6 +159,7 @@ def distill(data: Path, run: Path, policy: str, grid_text: str, teacher_steps: i
     name = f"distilled-{policy}-{len(grid)}"
     ckpt = run / f"{name}.pt"
     step = origin = 0  # origin: the step this adversarial fine-tune began at (`adversarial_start` counts from it)
+    judged = None  # (mean, std) the discriminator's inputs are standardised by, when they are
     if ckpt.exists():
         saved = torch.load(ckpt, map_location=dev, weights_only=False)
         if saved["distilled"]["timesteps"] != grid:
@@ -169,7 +170,7 @@ def distill(data: Path, run: Path, policy: str, grid_text: str, teacher_steps: i
         load_optimiser(opt, saved, ckpt)
         step = saved["step"]
         origin = saved.get("adversarial_origin", step)
-        judged = saved.get("judged_scale")  # (mean, std) the saved discriminator's inputs were standardised by
+        judged = saved.get("judged_scale")
         if adversarial and "disc" in saved and (judged is not None) == standardise_judged:
             disc.load_state_dict(saved["disc"])
             opt_d.load_state_dict(saved["opt_d"])
@@ -178,8 +179,7 @@ def distill(data: Path, run: Path, policy: str, grid_text: str, teacher_steps: i
             print(f"a fresh discriminator: {ckpt.name}'s judged {'standardised' if judged else 'raw'} frames")
             judged, origin = None, step
         print(f"resuming {ckpt.name} at step {step}")
-    else:
-        judged = None
+
     layout = LAYOUTS[policy]
     source = wdata.PlannedLatents(data, run / "latents", policy, layout, memory_focus, warp=cfg.cdit.warp)
     decoded = edge_weight > 0 or adversarial
@@ -256,12 +256,12 @@ def distill(data: Path, run: Path, policy: str, grid_text: str, teacher_steps: i
             condition = torch.cat([scaled(warped.permute(0, 3, 1, 2).float() / 127.5 - 1.0) * landed[:, None],
                                    landed[:, None].float()], dim=1)
             judge = lambda frame: disc(torch.cat([scaled(frame), condition], dim=1))
-            patches = None
-            if judge_holes:  # each patch by its share of the warp's holes (a floor keeps the rest in play)
-                patches = lambda logits: F.adaptive_avg_pool2d(1.0 - landed[:, None].float(), logits.shape[-2:]) + 0.05
+            # With judge_holes, each patch counts by its share of the warp's holes (a floor keeps the rest in play).
+            weigh = lambda logits: (F.adaptive_avg_pool2d(1.0 - landed[:, None].float(), logits.shape[-2:]) + 0.05
+                                    if judge_holes else None)
             if step - origin >= adversarial_start:
                 fake = judge(image)
-                g_adv = -patch_mean(fake, patches(fake) if patches else None)
+                g_adv = -patch_mean(fake, weigh(fake))
                 weight = adversarial_weight * adaptive_weight(loss, g_adv, student.final.weight)
                 if adversarial_cap is not None:
                     weight = weight.clamp(max=adversarial_cap)
@@ -271,7 +271,7 @@ def distill(data: Path, run: Path, policy: str, grid_text: str, teacher_steps: i
             with torch.no_grad():
                 real = autoencoder.decoder(x0 / autoencoder.scale)
             real_logits = judge(real)
-            d_loss = hinge_discriminator(real_logits, judge(image.detach()), patches(real_logits) if patches else None)
+            d_loss = hinge_discriminator(real_logits, judge(image.detach()), weigh(real_logits))
             opt_d.zero_grad(set_to_none=True)
             d_loss.backward()
             opt_d.step()
