@@ -17,7 +17,10 @@
 #                                  # TRAIN (data/train120); TEACHER (a model folder) and STUDENT (one to go on from; empty:
 #                                  # the teacher's weights, as ADD starts) for another world's model; STANDARDISE_JUDGED=1:
 #                                  # the discriminator judges standardised frames (dark worlds; a fresh one if it judged raw);
-#                                  # JUDGE_HOLES=1: its patches count by their share of the warp's holes
+#                                  # JUDGE_HOLES=1: its patches count by their share of the warp's holes;
+#                                  # JUDGE=teacher: LADD's discriminator (the frozen teacher's features of latents
+#                                  # re-noised below JUDGE_NOISE, 500) in place of the pixel PatchGAN; JUDGE_LR: the
+#                                  # discriminator's learning rate (default LR)
 #   ./scripts/distill.sh adversarial-export  # -> OUT (RUN/model), with DECODER's decoder and HEADS's fusion heads (a model folder);
 #                                  # VAL (data/val): the suite its manifest's metrics are measured on
 # RUN (runs/distill/<N>step; runs/distill/adversarial for those two) holds the run; PY runs `python -m worldpack_model`
@@ -70,7 +73,8 @@ case "${1:-}" in
         --batch "${BATCH:-16}" --lr "${LR:-1e-4}" --ema 0.998 --device "${DEVICE:-auto}" --threads "${THREADS:-1}" \
         --adversarial-weight "${ADV:-0.5}" --adversarial-start "${ADV_START:-200}" --decoder-from "$decoder" \
         ${MINUTES:+--minutes "$MINUTES"} ${ADV_CAP:+--adversarial-cap "$ADV_CAP"} ${STANDARDISE_JUDGED:+--standardise-judged} \
-        ${JUDGE_HOLES:+--judge-holes} ;;
+        ${JUDGE_HOLES:+--judge-holes} ${JUDGE:+--judge "$JUDGE"} ${JUDGE_NOISE:+--judge-noise "$JUDGE_NOISE"} \
+        ${JUDGE_LR:+--judge-lr "$JUDGE_LR"} ;;
   adversarial-export)
     "${py[@]}" export --run "$run" --policy worldpack --distilled 1 --layouts worldpack --data "${VAL:-data/val}" --out "$out" \
         --half --decoder-from "$decoder" --fusion-from "${HEADS:-$decoder}" --threads "${THREADS:-1}" ;;

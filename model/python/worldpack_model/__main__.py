@@ -126,6 +126,12 @@ def main() -> None:
     p.add_argument("--judge-holes", action="store_true",
                    help="weight each discriminator patch (in both terms) by its share of the warp's holes, where "
                         "real and generated frames differ")
+    p.add_argument("--judge", choices=("pixels", "teacher"), default="pixels",
+                   help="the discriminator: pixels, a conditional PatchGAN on decoded frames (ADD); teacher, heads on "
+                        "the frozen teacher's block features of re-noised latents (LADD, Sauer et al. 2024)")
+    p.add_argument("--judge-noise", type=int, default=500,
+                   help="with --judge teacher: latents are re-noised to a timestep drawn below this one")
+    p.add_argument("--judge-lr", type=float, help="the discriminator's learning rate (default: --lr)")
 
     p = sub.add_parser("paper-scale", help="a model folder at the paper's shapes (224x224 frames, 4x28x28 latents, "
                        "844 vs 784 context tokens) with random seeded weights: --size paper (CDiT-B/2, SD-VAE-shaped "
@@ -185,6 +191,9 @@ def main() -> None:
                    "where it landed, the kept frame's K x K mean becomes the warp's colours diffused into the hole (0: off)")
     p.add_argument("--hole-detail", type=int, default=0, help="an odd window K: in the warp's holes the frame shown "
                    "takes the decoded frame's detail beyond its K x K local mean (0: off)")
+    p.add_argument("--warp-detail", type=float, default=0.0, help="a tolerance T in 8-bit levels: where the warp landed, "
+                   "the frame shown takes the warp's detail beyond its 3x3 local mean, a half where their 5x5 local "
+                   "means lie T apart (0: off)")
 
     p = sub.add_parser("sharpen-decoder", help="fine-tune run/autoencoder.pt's decoder for sharp frames, the encoder "
                        "(so the latent space) frozen (sharpen.py; resumes from run/decoder-sharp.pt)")
@@ -241,7 +250,7 @@ def main() -> None:
     elif a.stage == "fusion-pair":
         from . import fusion
 
-        fusion.pair(a.kept, a.shown, a.out, a.data, a.hole_fill, a.hole_detail)
+        fusion.pair(a.kept, a.shown, a.out, a.data, a.hole_fill, a.hole_detail, a.warp_detail)
     elif a.stage == "sharpen-decoder":
         from . import sharpen
 
@@ -274,7 +283,7 @@ def main() -> None:
 
         distill.distill(a.data, a.run, a.policy, a.grid, a.teacher_steps, a.steps, a.batch, a.lr, a.ema, a.device, a.minutes,
                         a.edge_weight, a.adversarial_weight, a.adversarial_start, a.decoder_from, a.adversarial_cap,
-                        a.standardise_judged, a.judge_holes)
+                        a.standardise_judged, a.judge_holes, a.judge, a.judge_noise, a.judge_lr)
 
 
 if __name__ == "__main__":

@@ -277,12 +277,14 @@ class CDiT(nn.Module):
         token_mask = mask.unsqueeze(-1).expand(b, s, n).reshape(b, s * n)
         return tokens, positions, token_mask
 
-    def forward(self, x_t, timestep, action, rel_time, groups, rates=None, warp=None):
+    def forward(self, x_t, timestep, action, rel_time, groups, rates=None, warp=None, features=None):
         """groups: per rate in `rates` (default cfg.rates order of the layout),
         a tuple (frames (B,S,C,h,w), time offsets (B,S), relative poses (B,S,12),
         mask (B,S)[, noise levels (B,S) with `context_noise`]). `warp`
         (B,C+1,h,w): the warped frame's latent and coverage (models with
-        `warp`; `warp.warp_input`). Returns the predicted noise, shaped like x_t."""
+        `warp`; `warp.warp_input`). Returns the predicted noise, shaped like x_t.
+        `features` (a list): each block's output tokens (B, grid², hidden) are
+        appended to it (a discriminator built on this model reads them)."""
         rates = rates or self.cfg.rates
         want = 5 if self.cfg.context_noise else 4
         if len(groups) != len(rates) or any(len(g) != want for g in groups):
@@ -304,6 +306,8 @@ class CDiT(nn.Module):
         cos, sin = torch.cos(angles), torch.sin(angles)
         for blk in self.blocks:
             x = blk(x, context, cond, bias, cos, sin)
+            if features is not None:
+                features.append(x)
         shift, scale = self.final_ada(cond).chunk(2, dim=-1)
         x = self.final(modulate(self.final_norm(x), shift, scale))
         g = hh // p

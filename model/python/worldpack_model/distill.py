@@ -48,7 +48,15 @@ its input moves, and on dark, low-contrast frames the real and generated patches
 closer than its hinge margin. `judge_holes`: both terms weight each
 discriminator patch by its share of the warp's holes (plus a floor of
 0.05): where the warp landed, real and generated frames are nearly the same
-and the patches there teach it nothing. Where ADD distils the teacher's score, this
+and the patches there teach it nothing. `judge` "teacher" replaces the pixel
+PatchGAN with Latent Adversarial Diffusion Distillation's discriminator
+(Sauer et al. 2024; losses.TeacherFeatureJudge): the student's clean latent
+and the true one, re-noised to a level below `judge_noise`, through the
+frozen teacher, a small head per block on its tokens; it judges latents with
+the teacher's conditioning (context, action, warp), and no frame is decoded.
+`judge_lr`: the discriminator's learning rate when it differs from the
+student's (the two time-scale rule of Heusel et al. 2017: a discriminator
+that learns faster keeps up with its generator). Where ADD distils the teacher's score, this
 keeps progressive distillation's target: the teacher here is a short
 deterministic sampler, whose landing point is cheap and exact."""
 
@@ -69,7 +77,8 @@ from . import data as wdata
 from .cdit import CDiT
 from .config import LAYOUTS
 from .diffusion import Schedule
-from .losses import PatchDiscriminator, adaptive_weight, gradient_difference, hinge_discriminator, patch_mean
+from .losses import (PatchDiscriminator, TeacherFeatureJudge, adaptive_weight, gradient_difference,
+                     hinge_discriminator, patch_mean)
 from .recipe import ContextAugmenter, Recipe
 from .train import load_autoencoder, load_optimiser, log, optimise, pick_device, run_config, save
 from .warp import batch_warp_pixels, warp_input
@@ -130,7 +139,8 @@ def teacher_segment(eps_fn, alpha_bar: torch.Tensor, x: torch.Tensor, start: tor
 def distill(data: Path, run: Path, policy: str, grid_text: str, teacher_steps: int, steps: int, batch: int, lr: float,
             ema_decay: float, device: str, minutes: float | None, edge_weight: float = 0.0,
             adversarial_weight: float = 0.0, adversarial_start: int = 0, decoder_from: Path | None = None,
-            adversarial_cap: float | None = None, standardise_judged: bool = False, judge_holes: bool = False) -> None:
+            adversarial_cap: float | None = None, standardise_judged: bool = False, judge_holes: bool = False,
+            judge: str = "pixels", judge_noise: int = 500, judge_lr: float | None = None) -> None:
     cfg = run_config(run)
     dev = pick_device(device)
     grid = parse_grid(grid_text, cfg.diffusion.timesteps)
@@ -152,9 +162,17 @@ def distill(data: Path, run: Path, policy: str, grid_text: str, teacher_steps: i
     if adversarial and not cfg.cdit.warp:
         raise SystemExit("--adversarial-weight: the discriminator judges a frame beside its warp; "
                          f"{teacher_path} is not a geometry model (no warp input)")
-    # Conditional on the warp: the frame (3), the warped image (3) and where it landed (1).
-    disc = PatchDiscriminator(channels=7).to(dev) if adversarial else None
-    opt_d = torch.optim.Adam(disc.parameters(), lr=lr, betas=(0.5, 0.9)) if adversarial else None
+    if judge not in ("pixels", "teacher"):
+        raise SystemExit(f"--judge: pixels or teacher, got {judge!r}")
+    if judge == "teacher" and standardise_judged:
+        raise SystemExit("--standardise-judged: the teacher judges latents, which are already standardised")
+    if not 0 < judge_noise <= cfg.diffusion.timesteps:
+        raise SystemExit(f"--judge-noise: a timestep in 1..{cfg.diffusion.timesteps}, got {judge_noise}")
+    in_pixels = adversarial and judge == "pixels"
+    # Pixels: conditional on the warp, the frame (3), the warped image (3) and where it landed (1).
+    disc = None if not adversarial else (PatchDiscriminator(channels=7) if in_pixels else
+                                         TeacherFeatureJudge(cfg.cdit.hidden, cfg.cdit.depth)).to(dev)
+    opt_d = torch.optim.Adam(disc.parameters(), lr=judge_lr or lr, betas=(0.5, 0.9)) if adversarial else None
 
     name = f"distilled-{policy}-{len(grid)}"
     ckpt = run / f"{name}.pt"
@@ -171,18 +189,20 @@ def distill(data: Path, run: Path, policy: str, grid_text: str, teacher_steps: i
         step = saved["step"]
         origin = saved.get("adversarial_origin", step)
         judged = saved.get("judged_scale")
-        if adversarial and "disc" in saved and (judged is not None) == standardise_judged:
+        kind = saved.get("judge_kind", "pixels")
+        if adversarial and "disc" in saved and (judged is not None) == standardise_judged and kind == judge:
             disc.load_state_dict(saved["disc"])
             opt_d.load_state_dict(saved["opt_d"])
         elif adversarial and "disc" in saved:
-            # A discriminator trained on the other kind of input would judge these frames by the wrong scale.
-            print(f"a fresh discriminator: {ckpt.name}'s judged {'standardised' if judged else 'raw'} frames")
+            # A discriminator trained on other inputs would judge these by the wrong measure.
+            what = f"{'standardised' if judged else 'raw'} frames" if kind == "pixels" else "latents through the teacher"
+            print(f"a fresh discriminator: {ckpt.name}'s judged {what}")
             judged, origin = None, step
         print(f"resuming {ckpt.name} at step {step}")
 
     layout = LAYOUTS[policy]
     source = wdata.PlannedLatents(data, run / "latents", policy, layout, memory_focus, warp=cfg.cdit.warp)
-    decoded = edge_weight > 0 or adversarial
+    decoded = edge_weight > 0 or in_pixels
     autoencoder = load_autoencoder(run, dev).requires_grad_(False) if cfg.cdit.warp or decoded else None
     if decoder_from is not None:
         from .sharpen import decoder_from as load_decoder
@@ -211,12 +231,16 @@ def distill(data: Path, run: Path, policy: str, grid_text: str, teacher_steps: i
         record["edge_weight"] = edge_weight
     if adversarial:
         record["adversarial"] = {"method": "Adversarial Diffusion Distillation's adversarial term (Sauer et al. 2023): "
-                                           "conditional PatchGAN on decoded frames, hinge loss, VQGAN's adaptive weight",
+                                           "conditional PatchGAN on decoded frames, hinge loss, VQGAN's adaptive weight"
+                                 if in_pixels else
+                                 "Latent Adversarial Diffusion Distillation (Sauer et al. 2024): the frozen teacher's "
+                                 "block features of re-noised latents, a head per block, hinge loss, VQGAN's adaptive weight",
+                                 "judge_noise": None if in_pixels else judge_noise, "judge_lr": judge_lr or lr,
                                  "weight": adversarial_weight, "start": adversarial_start, "from_step": origin,
                                  "cap": adversarial_cap, "judged_scale": judged, "judged_by_holes": judge_holes,
                                  "decoder": str(decoder_from) if decoder_from else "the run's"}
     extra = lambda: dict(disc=disc.state_dict(), opt_d=opt_d.state_dict(), adversarial_origin=origin,
-                         judged_scale=judged) if adversarial else {}
+                         judged_scale=judged, judge_kind=judge) if adversarial else {}
     checkpoint = lambda: save(ckpt, model=student.state_dict(), ema=ema.state_dict(), opt=opt.state_dict(), step=step,
                               policy=policy, memory_focus=memory_focus, recipe=recipe.to_json(), distilled=record,
                               init_from=str(teacher_path), plans_query=source.plans_query,
@@ -250,17 +274,31 @@ def distill(data: Path, run: Path, policy: str, grid_text: str, teacher_steps: i
                 image_target = autoencoder.decoder(x0_target / autoencoder.scale)
             loss = loss + edge_weight * gradient_difference(image, image_target)
         d_loss = weight = torch.tensor(0.0)
-        if adversarial:
+        if in_pixels:
             mean, std = judged or (0.0, 1.0)
             scaled = lambda image: (image - mean) / std
             condition = torch.cat([scaled(warped.permute(0, 3, 1, 2).float() / 127.5 - 1.0) * landed[:, None],
                                    landed[:, None].float()], dim=1)
-            judge = lambda frame: disc(torch.cat([scaled(frame), condition], dim=1))
+            judged_fake, judged_real = image, lambda: autoencoder.decoder(x0 / autoencoder.scale)
+            judge_of = lambda frame: disc(torch.cat([scaled(frame), condition], dim=1))
+        elif adversarial:
+            # Real and generated latents re-noised alike (one level and one noise per sample).
+            t_judge = torch.randint(0, judge_noise, (batch,), device=dev)
+            ab_judge = alpha_bar[t_judge].view(-1, 1, 1, 1)
+            noise_judge = torch.randn_like(x0)
+            judged_fake, judged_real = x0_student, lambda: x0
+
+            def judge_of(latent):
+                features = []
+                teacher(ab_judge.sqrt() * latent + (1 - ab_judge).sqrt() * noise_judge, t_judge.float(), action,
+                        rel_time, groups, rates=layout.rates, warp=warp_in, features=features)
+                return disc(features)
+        if adversarial:
             # With judge_holes, each patch counts by its share of the warp's holes (a floor keeps the rest in play).
             weigh = lambda logits: (F.adaptive_avg_pool2d(1.0 - landed[:, None].float(), logits.shape[-2:]) + 0.05
                                     if judge_holes else None)
             if step - origin >= adversarial_start:
-                fake = judge(image)
+                fake = judge_of(judged_fake)
                 g_adv = -patch_mean(fake, weigh(fake))
                 weight = adversarial_weight * adaptive_weight(loss, g_adv, student.final.weight)
                 if adversarial_cap is not None:
@@ -269,9 +307,9 @@ def distill(data: Path, run: Path, policy: str, grid_text: str, teacher_steps: i
         optimise(student, ema, opt, loss, ema_decay)
         if adversarial:
             with torch.no_grad():
-                real = autoencoder.decoder(x0 / autoencoder.scale)
-            real_logits = judge(real)
-            d_loss = hinge_discriminator(real_logits, judge(image.detach()), weigh(real_logits))
+                real = judged_real()
+            real_logits = judge_of(real)
+            d_loss = hinge_discriminator(real_logits, judge_of(judged_fake.detach()), weigh(real_logits))
             opt_d.zero_grad(set_to_none=True)
             d_loss.backward()
             opt_d.step()

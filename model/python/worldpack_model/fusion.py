@@ -73,11 +73,15 @@ class HeadPair(nn.Module):
     the kept frame's holes next to where the warp landed take the warp's
     colours (`fill_holes_from_warp`). `hole_detail` K > 0: the frame shown
     takes the decoded frame's detail in the warp's holes
-    (`detail_in_holes`)."""
+    (`detail_in_holes`). `warp_detail` T > 0: where the warp landed and
+    agrees with the frame shown to within about T 8-bit levels, the frame
+    shown takes the warp's detail (`warp_detail_where_agreed`)."""
 
-    def __init__(self, shown: FusionHead, kept: FusionHead, hole_fill: int = 0, hole_detail: int = 0):
+    def __init__(self, shown: FusionHead, kept: FusionHead, hole_fill: int = 0, hole_detail: int = 0,
+                 warp_detail: float = 0.0):
         super().__init__()
         self.shown, self.kept, self.hole_fill, self.hole_detail = shown, kept, hole_fill, hole_detail
+        self.warp_detail = warp_detail
 
     def forward(self, predicted, reference, landed):
         head = self.kept(predicted, reference, landed)
@@ -86,6 +90,8 @@ class HeadPair(nn.Module):
         shown = head if self.shown is self.kept else self.shown(predicted, reference, landed)
         if self.hole_detail:
             shown = detail_in_holes(shown, predicted, landed, self.hole_detail)
+        if self.warp_detail:
+            shown = warp_detail_where_agreed(shown, reference, landed, self.warp_detail)
         return shown, kept
 
 
@@ -120,6 +126,23 @@ def detail_in_holes(frame, predicted, landed, k: int):
     return frame + ((predicted - pool(predicted)) - (frame - pool(frame))) * (1 - landed)
 
 
+def warp_detail_where_agreed(frame, reference, landed, tolerance: float):
+    """`frame` that, where the warp landed, takes the warp's detail (beyond
+    its 3x3 local mean) in the measure that the two frames' 5x5 local means
+    agree: fully where they match, a half where they differ by `tolerance`
+    8-bit levels (the RGB distance), little beyond.
+
+    A head trained for MSE blends the warp with the decoded frame wherever
+    the warp might be misplaced, and the blend averages two textures into
+    blur. Where the warp's local colours match the frame shown, the warp lies
+    on the right surface, and its pixels, the memory's own, have the edges."""
+    pool = lambda x, k: F.avg_pool2d(x, k, stride=1, padding=k // 2, count_include_pad=False)
+    distance2 = (pool(reference, 5) - pool(frame, 5)).pow(2).sum(1, keepdim=True) * 127.5**2
+    agree = torch.exp(-math.log(2) * distance2 / tolerance**2)
+    detail = lambda x: x - pool(x, 3)
+    return frame + (detail(reference) - detail(frame)) * agree * landed
+
+
 def head_of(model: Path, part: str = "kept") -> tuple[FusionHead, dict]:
     """The fusion head of an exported model folder, rebuilt from its
     fusion.onnx (the initializers keep the PyTorch names), and its manifest
@@ -132,8 +155,10 @@ def head_of(model: Path, part: str = "kept") -> tuple[FusionHead, dict]:
     spec = manifest.get("fusion")
     if spec is None:
         raise SystemExit(f"{model}: has no fusion head")
-    prefix = f"{part}." if "pair" in spec else ""
     proto = onnx.load(model / spec["file"])
+    prefix = f"{part}." if "pair" in spec else ""
+    if prefix and not any(i.name.startswith(prefix) for i in proto.graph.initializer):
+        prefix = "kept."  # a pair of one head stores it once, as the frame kept's
     weights = {i.name[len(prefix):]: torch.from_numpy(numpy_helper.to_array(i).copy())
                for i in proto.graph.initializer if i.name.startswith(prefix)}
     dilation_of = {n.input[1]: next((list(a.ints)[0] for a in n.attribute if a.name == "dilations"), 1)
@@ -224,6 +249,7 @@ def train(data: list[Path], run: Path, steps: int, batch: int, lr: float, minute
         print(f"starting from the head of {init_from} (its step {saved['step']})")
     config = {"width": width, "dilations": list(head.dilations), "data": [str(d) for d in data], "examples": n, "held_out": n - cut,
               "edge_weight": edge_weight, "edge_landed": edge_landed}
+
     if adversarial:
         config |= {"adversarial_weight": adversarial_weight, "adversarial_start": adversarial_start}
     if init_from is not None:
@@ -371,15 +397,16 @@ def export(run: Path, model: Path, out: Path, data: Path | None = None) -> None:
     print(f"wrote {out} ({manifest['fusion']['parameters']} fusion parameters)")
 
 
-def pair(kept: Path, shown: Path, out: Path, data: Path | None = None, hole_fill: int = 0, hole_detail: int = 0) -> None:
+def pair(kept: Path, shown: Path, out: Path, data: Path | None = None, hole_fill: int = 0, hole_detail: int = 0,
+         warp_detail: float = 0.0) -> None:
     """A copy of the model folder `kept` at `out` whose head is a `HeadPair`:
     the frame shown is `shown`'s head's, with the decoded frame's detail in
     the warp's holes when `hole_detail` (an odd window) is set; the frame
     the memory keeps is `kept`'s own head's (the graph's second output,
-    `kept`), its holes filled from the warp when `hole_fill` is set."""
-    for flag, k in (("--hole-fill", hole_fill), ("--hole-detail", hole_detail)):
-        if k and (k < 3 or k % 2 == 0):
-            raise SystemExit(f"{flag}: an odd window of at least 3 pixels, or 0 for none; got {k}")
+    `kept`), its holes filled from the warp when `hole_fill` is set.
+    `warp_detail` T > 0: the frame shown takes the warp's detail where the
+    warp landed and agrees with it to within about T 8-bit levels."""
+    check_rules(hole_fill, hole_detail, warp_detail)
     from .export import to_onnx
     import onnx
     import tempfile
@@ -396,7 +423,7 @@ def pair(kept: Path, shown: Path, out: Path, data: Path | None = None, hole_fill
         shutil.copytree(kept, staged)
         same = architecture(shown_head) == architecture(kept_head) and all(
             torch.equal(a, b) for a, b in zip(shown_head.state_dict().values(), kept_head.state_dict().values()))
-        heads = HeadPair(kept_head if same else shown_head, kept_head, hole_fill, hole_detail).eval()
+        heads = HeadPair(kept_head if same else shown_head, kept_head, hole_fill, hole_detail, warp_detail).eval()
         args = reference_images(data, h, w)
         outputs = ("image", "kept")
         onnx.save(to_onnx(heads, args, list(INPUTS), list(outputs)), staged / kept_spec["file"])
@@ -412,11 +439,13 @@ def pair(kept: Path, shown: Path, out: Path, data: Path | None = None, hole_fill
             f"; the kept frame's {hole_fill}x{hole_fill} local mean in the warp's holes replaced by the warp's colours diffused into them"
             if hole_fill else "") + (
             f"; the frame shown takes the decoded frame's detail (beyond its {hole_detail}x{hole_detail} local mean) in the warp's holes"
-            if hole_detail else "")
+            if hole_detail else "") + (
+            f"; where the warp landed, the frame shown takes the warp's detail (beyond its 3x3 local mean) in the measure "
+            f"that their 5x5 local means agree (a half at {warp_detail:g} 8-bit levels apart)" if warp_detail else "")
         spec["parameters"] = kept_spec["parameters"] + (0 if same else shown_spec["parameters"])
         spec["pair"] = {"shown": {"model": shown_spec.get("model", shown.name), "trained": shown_spec.get("trained")},
                         "kept": {"model": kept_spec.get("model", kept.name), "trained": kept_spec.get("trained")},
-                        "hole_fill": hole_fill, "hole_detail": hole_detail}
+                        "hole_fill": hole_fill, "hole_detail": hole_detail, "warp_detail": warp_detail}
         manifest["name"] = out.name
         manifest["fusion"] = spec
         (staged / "manifest.json").write_text(json.dumps(manifest, indent=1))
@@ -424,6 +453,15 @@ def pair(kept: Path, shown: Path, out: Path, data: Path | None = None, hole_fill
             shutil.rmtree(out)
         shutil.copytree(staged, out)
     print(f"wrote {out}: shows {shown.name}'s head's frame, keeps {kept.name}'s")
+
+
+def check_rules(hole_fill: int, hole_detail: int, warp_detail: float) -> None:
+    """The `HeadPair` rules' settings as the command line gives them, or a message naming the flag."""
+    for flag, k in (("--hole-fill", hole_fill), ("--hole-detail", hole_detail)):
+        if k and (k < 3 or k % 2 == 0):
+            raise SystemExit(f"{flag}: an odd window of at least 3 pixels, or 0 for none; got {k}")
+    if not (warp_detail >= 0 and math.isfinite(warp_detail)):
+        raise SystemExit(f"--warp-detail: a tolerance in 8-bit levels, at least 0 (0: off); got {warp_detail}")
 
 
 def without_head(model: Path, out: Path) -> None:

@@ -46,6 +46,31 @@ class PatchDiscriminator(nn.Module):
         return self.net(image)
 
 
+class TeacherFeatureJudge(nn.Module):
+    """The discriminator of Latent Adversarial Diffusion Distillation (Sauer
+    et al. 2024, "Fast High-Resolution Image Synthesis with Latent
+    Adversarial Diffusion Distillation"): the frozen teacher denoiser is its
+    backbone, and a small head per block reads that block's tokens of a
+    re-noised latent and gives one logit per token (a patch of the frame).
+    The teacher already tells sharp latents from blurred ones at low noise
+    (it was trained to remove exactly that noise), so the heads start from
+    features that see detail; a pixel PatchGAN trained from scratch on dark
+    Doom frames stayed at chance. Only the heads train."""
+
+    def __init__(self, hidden: int, depth: int):
+        super().__init__()
+        self.heads = nn.ModuleList(
+            nn.Sequential(nn.LayerNorm(hidden), nn.Linear(hidden, hidden), nn.LeakyReLU(0.2), nn.Linear(hidden, 1))
+            for _ in range(depth))
+
+    def forward(self, features: list[torch.Tensor]) -> torch.Tensor:
+        """Each block's tokens (B, n, hidden), n a square grid -> logits (B, depth, side, side)."""
+        b, n, _ = features[0].shape
+        side = int(round(n ** 0.5))
+        logits = torch.cat([head(f) for head, f in zip(self.heads, features)], dim=-1)  # (B, n, depth)
+        return logits.transpose(1, 2).reshape(b, len(self.heads), side, side)
+
+
 def hinge_discriminator(real_logits: torch.Tensor, fake_logits: torch.Tensor,
                         patch_weight: torch.Tensor | None = None) -> torch.Tensor:
     """The hinge loss of a discriminator (Lim & Ye 2017, as VQGAN trains it);
