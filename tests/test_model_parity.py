@@ -132,7 +132,8 @@ def warp_detail_where_agreed(frame, reference, landed, tolerance):
     """fusion.warp_detail_where_agreed, written again without torch."""
     distance2 = ((box_mean(reference, 5) - box_mean(frame, 5)) ** 2).sum(1, keepdims=True) * 127.5**2
     agree = np.exp(-np.log(2) * distance2 / tolerance**2)
-    detail = lambda x: x - box_mean(x, 3)
+    luma = lambda x: (x * np.array([0.299, 0.587, 0.114], np.float32).reshape(1, 3, 1, 1)).sum(1, keepdims=True)
+    detail = lambda x: luma(x) - box_mean(luma(x), 3)
     return frame + (detail(reference) - detail(frame)) * agree * landed
 
 

@@ -192,7 +192,7 @@ def main() -> None:
     p.add_argument("--hole-detail", type=int, default=0, help="an odd window K: in the warp's holes the frame shown "
                    "takes the decoded frame's detail beyond its K x K local mean (0: off)")
     p.add_argument("--warp-detail", type=float, default=0.0, help="a tolerance T in 8-bit levels: where the warp landed, "
-                   "the frame shown takes the warp's detail beyond its 3x3 local mean, a half where their 5x5 local "
+                   "the frame shown takes the warp's luma detail beyond its 3x3 local mean, a half where their 5x5 local "
                    "means lie T apart (0: off)")
 
     p = sub.add_parser("sharpen-decoder", help="fine-tune run/autoencoder.pt's decoder for sharp frames, the encoder "

@@ -41,6 +41,7 @@ from .train import resume
 
 INPUTS = ("predicted", "reference", "landed")  # the order model/src/manifest.rs expects
 CORRECTION = 0.25  # the largest per-channel correction beyond the blend, in [-1, 1] units
+LUMA = torch.tensor([0.299, 0.587, 0.114]).view(1, 3, 1, 1)  # Rec. 601, as eval::metrics' sharpness ratio
 
 
 class FusionHead(nn.Module):
@@ -75,7 +76,7 @@ class HeadPair(nn.Module):
     takes the decoded frame's detail in the warp's holes
     (`detail_in_holes`). `warp_detail` T > 0: where the warp landed and
     agrees with the frame shown to within about T 8-bit levels, the frame
-    shown takes the warp's detail (`warp_detail_where_agreed`)."""
+    shown takes the warp's luma detail (`warp_detail_where_agreed`)."""
 
     def __init__(self, shown: FusionHead, kept: FusionHead, hole_fill: int = 0, hole_detail: int = 0,
                  warp_detail: float = 0.0):
@@ -127,19 +128,22 @@ def detail_in_holes(frame, predicted, landed, k: int):
 
 
 def warp_detail_where_agreed(frame, reference, landed, tolerance: float):
-    """`frame` that, where the warp landed, takes the warp's detail (beyond
-    its 3x3 local mean) in the measure that the two frames' 5x5 local means
-    agree: fully where they match, a half where they differ by `tolerance`
-    8-bit levels (the RGB distance), little beyond.
+    """`frame` that, where the warp landed, takes the warp's luma detail
+    (beyond its 3x3 local mean) in the measure that the two frames' 5x5
+    local means agree: fully where they match, a half where they differ by
+    `tolerance` 8-bit levels (the RGB distance), little beyond.
 
     A head trained for MSE blends the warp with the decoded frame wherever
     the warp might be misplaced, and the blend averages two textures into
     blur. Where the warp's local colours match the frame shown, the warp lies
-    on the right surface, and its pixels, the memory's own, have the edges."""
+    on the right surface, and its pixels, the memory's own, have the edges.
+    Luma only: the eye, and the sharpness ratio, see edges in luma; the
+    colours stay the head's, which costs less where the warp is off."""
     pool = lambda x, k: F.avg_pool2d(x, k, stride=1, padding=k // 2, count_include_pad=False)
     distance2 = (pool(reference, 5) - pool(frame, 5)).pow(2).sum(1, keepdim=True) * 127.5**2
     agree = torch.exp(-math.log(2) * distance2 / tolerance**2)
-    detail = lambda x: x - pool(x, 3)
+    luma = lambda x: (x * LUMA.to(x.dtype)).sum(1, keepdim=True)
+    detail = lambda x: luma(x) - pool(luma(x), 3)
     return frame + (detail(reference) - detail(frame)) * agree * landed
 
 
@@ -404,7 +408,7 @@ def pair(kept: Path, shown: Path, out: Path, data: Path | None = None, hole_fill
     the warp's holes when `hole_detail` (an odd window) is set; the frame
     the memory keeps is `kept`'s own head's (the graph's second output,
     `kept`), its holes filled from the warp when `hole_fill` is set.
-    `warp_detail` T > 0: the frame shown takes the warp's detail where the
+    `warp_detail` T > 0: the frame shown takes the warp's luma detail where the
     warp landed and agrees with it to within about T 8-bit levels."""
     check_rules(hole_fill, hole_detail, warp_detail)
     from .export import to_onnx
@@ -440,7 +444,7 @@ def pair(kept: Path, shown: Path, out: Path, data: Path | None = None, hole_fill
             if hole_fill else "") + (
             f"; the frame shown takes the decoded frame's detail (beyond its {hole_detail}x{hole_detail} local mean) in the warp's holes"
             if hole_detail else "") + (
-            f"; where the warp landed, the frame shown takes the warp's detail (beyond its 3x3 local mean) in the measure "
+            f"; where the warp landed, the frame shown takes the warp's luma detail (beyond its 3x3 local mean) in the measure "
             f"that their 5x5 local means agree (a half at {warp_detail:g} 8-bit levels apart)" if warp_detail else "")
         spec["parameters"] = kept_spec["parameters"] + (0 if same else shown_spec["parameters"])
         spec["pair"] = {"shown": {"model": shown_spec.get("model", shown.name), "trained": shown_spec.get("trained")},
