@@ -192,7 +192,7 @@ def distill(data: Path, run: Path, policy: str, grid_text: str, teacher_steps: i
         kind = saved.get("judge_kind", "pixels")
         if adversarial and "disc" in saved and (judged is not None) == standardise_judged and kind == judge:
             disc.load_state_dict(saved["disc"])
-            opt_d.load_state_dict(saved["opt_d"])
+            load_optimiser(opt_d, saved, ckpt, key="opt_d")  # at --judge-lr, not the saved rate
         elif adversarial and "disc" in saved:
             # A discriminator trained on other inputs would judge these by the wrong measure.
             what = f"{'standardised' if judged else 'raw'} frames" if kind == "pixels" else "latents through the teacher"

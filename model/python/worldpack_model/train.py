@@ -51,16 +51,16 @@ def save(path: Path, **state) -> None:
     tmp.replace(path)  # a crash mid-save never leaves a torn checkpoint
 
 
-def load_optimiser(opt: torch.optim.Optimizer, state: dict, ckpt: Path) -> None:
-    """Restores `opt`'s moments from checkpoint `ckpt`'s `state`, keeping the
+def load_optimiser(opt: torch.optim.Optimizer, state: dict, ckpt: Path, key: str = "opt") -> None:
+    """Restores `opt`'s moments from checkpoint `ckpt`'s `state[key]`, keeping the
     learning rates `opt` was built with: a resumed run takes the `--lr` it is
     given, not the one it was saved with. A checkpoint recovered from an export
     has no moments (the weights survive, the optimiser does not): it says so."""
-    if "opt" not in state:
+    if key not in state:
         print(f"{ckpt.name} has no optimiser state (recovered from an export): AdamW starts afresh")
         return
     asked = [g["lr"] for g in opt.param_groups]
-    opt.load_state_dict(state["opt"])
+    opt.load_state_dict(state[key])
     for group, lr in zip(opt.param_groups, asked):
         group["lr"] = lr
 
