@@ -253,7 +253,6 @@ def train(data: list[Path], run: Path, steps: int, batch: int, lr: float, minute
         print(f"starting from the head of {init_from} (its step {saved['step']})")
     config = {"width": width, "dilations": list(head.dilations), "data": [str(d) for d in data], "examples": n, "held_out": n - cut,
               "edge_weight": edge_weight, "edge_landed": edge_landed}
-
     if adversarial:
         config |= {"adversarial_weight": adversarial_weight, "adversarial_start": adversarial_start}
     if init_from is not None:
@@ -410,7 +409,11 @@ def pair(kept: Path, shown: Path, out: Path, data: Path | None = None, hole_fill
     `kept`), its holes filled from the warp when `hole_fill` is set.
     `warp_detail` T > 0: the frame shown takes the warp's luma detail where the
     warp landed and agrees with it to within about T 8-bit levels."""
-    check_rules(hole_fill, hole_detail, warp_detail)
+    for flag, k in (("--hole-fill", hole_fill), ("--hole-detail", hole_detail)):
+        if k and (k < 3 or k % 2 == 0):
+            raise SystemExit(f"{flag}: an odd window of at least 3 pixels, or 0 for none; got {k}")
+    if not (warp_detail >= 0 and math.isfinite(warp_detail)):
+        raise SystemExit(f"--warp-detail: a tolerance in 8-bit levels, at least 0 (0: off); got {warp_detail}")
     from .export import to_onnx
     import onnx
     import tempfile
@@ -457,15 +460,6 @@ def pair(kept: Path, shown: Path, out: Path, data: Path | None = None, hole_fill
             shutil.rmtree(out)
         shutil.copytree(staged, out)
     print(f"wrote {out}: shows {shown.name}'s head's frame, keeps {kept.name}'s")
-
-
-def check_rules(hole_fill: int, hole_detail: int, warp_detail: float) -> None:
-    """The `HeadPair` rules' settings as the command line gives them, or a message naming the flag."""
-    for flag, k in (("--hole-fill", hole_fill), ("--hole-detail", hole_detail)):
-        if k and (k < 3 or k % 2 == 0):
-            raise SystemExit(f"{flag}: an odd window of at least 3 pixels, or 0 for none; got {k}")
-    if not (warp_detail >= 0 and math.isfinite(warp_detail)):
-        raise SystemExit(f"--warp-detail: a tolerance in 8-bit levels, at least 0 (0: off); got {warp_detail}")
 
 
 def without_head(model: Path, out: Path) -> None:
