@@ -36,12 +36,11 @@ import torch
 from torch import nn
 import torch.nn.functional as F
 
-from .losses import PatchDiscriminator, adaptive_weight, gradient_difference, hinge_discriminator, sharpness_ratio
+from .losses import LUMA, PatchDiscriminator, adaptive_weight, gradient_difference, hinge_discriminator, sharpness_ratio
 from .train import resume
 
 INPUTS = ("predicted", "reference", "landed")  # the order model/src/manifest.rs expects
 CORRECTION = 0.25  # the largest per-channel correction beyond the blend, in [-1, 1] units
-LUMA = torch.tensor([0.299, 0.587, 0.114]).view(1, 3, 1, 1)  # Rec. 601, as eval::metrics' sharpness ratio
 
 
 class FusionHead(nn.Module):
@@ -96,6 +95,11 @@ class HeadPair(nn.Module):
         return shown, kept
 
 
+def local_mean(x, k: int):
+    """The k x k mean around each pixel of NCHW `x`, over the pixels inside the frame."""
+    return F.avg_pool2d(x, k, stride=1, padding=k // 2, count_include_pad=False)
+
+
 def fill_holes_from_warp(frame, reference, landed, k: int):
     """`frame` with, in the warp's holes that lie within k // 2 pixels of
     where it landed, its k x k local mean replaced by the warp's own colours
@@ -106,7 +110,7 @@ def fill_holes_from_warp(frame, reference, landed, k: int):
     kept frame comes out darker, and every later frame conditioned on it
     inherits the smear (docs/benchmarks.md, world 3). The nearest landed
     pixels carry this world's colours instead."""
-    pool = lambda x: F.avg_pool2d(x, k, stride=1, padding=k // 2, count_include_pad=False)
+    pool = lambda x: local_mean(x, k)
     near = pool(landed)
     diffused = pool(reference * landed) / (near + 1e-3)
     reach = (near > 1e-3).float()
@@ -123,7 +127,7 @@ def detail_in_holes(frame, predicted, landed, k: int):
     what could be there, and the decoded frame, the student's sample, has
     the edges. The head's local mean keeps the colours MSE gets right; the
     decoded frame's detail is what a frame there looks like."""
-    pool = lambda x: F.avg_pool2d(x, k, stride=1, padding=k // 2, count_include_pad=False)
+    pool = lambda x: local_mean(x, k)
     return frame + ((predicted - pool(predicted)) - (frame - pool(frame))) * (1 - landed)
 
 
@@ -139,11 +143,10 @@ def warp_detail_where_agreed(frame, reference, landed, tolerance: float):
     on the right surface, and its pixels, the memory's own, have the edges.
     Luma only: the eye, and the sharpness ratio, see edges in luma; the
     colours stay the head's, which costs less where the warp is off."""
-    pool = lambda x, k: F.avg_pool2d(x, k, stride=1, padding=k // 2, count_include_pad=False)
-    distance2 = (pool(reference, 5) - pool(frame, 5)).pow(2).sum(1, keepdim=True) * 127.5**2
+    distance2 = (local_mean(reference, 5) - local_mean(frame, 5)).pow(2).sum(1, keepdim=True) * 127.5**2
     agree = torch.exp(-math.log(2) * distance2 / tolerance**2)
     luma = lambda x: (x * LUMA.to(x.dtype)).sum(1, keepdim=True)
-    detail = lambda x: luma(x) - pool(luma(x), 3)
+    detail = lambda x: luma(x) - local_mean(luma(x), 3)
     return frame + (detail(reference) - detail(frame)) * agree * landed
 
 

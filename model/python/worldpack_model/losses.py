@@ -7,6 +7,9 @@ import torch.nn.functional as F
 from torch import nn
 
 
+LUMA = torch.tensor([0.299, 0.587, 0.114]).view(1, 3, 1, 1)  # Rec. 601 weights, as eval::metrics' luma
+
+
 def gradient_difference(a: torch.Tensor, b: torch.Tensor, where: torch.Tensor | None = None) -> torch.Tensor:
     """The gradient difference loss of Mathieu, Couprie & LeCun (2016, "Deep
     multi-scale video prediction beyond mean square error", eq. 5, alpha 1):
@@ -104,7 +107,7 @@ def sharpness_ratio(predicted: torch.Tensor, truth: torch.Tensor, where: torch.T
     them (eval::metrics::sharpness_ratio_where)."""
     def luma(x):
         u8 = ((x.clamp(-1, 1) + 1) * 127.5).round()
-        return 0.299 * u8[:, 0] + 0.587 * u8[:, 1] + 0.114 * u8[:, 2]
+        return (u8 * LUMA.to(u8.dtype)).sum(1)
 
     m = torch.ones_like(truth[:, 0]) if where is None else where[:, 0].float()
     mx, my = m[:, :, 1:] * m[:, :, :-1], m[:, 1:, :] * m[:, :-1, :]
