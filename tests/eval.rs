@@ -121,6 +121,23 @@ fn reduced_rollout_suite_runs_resumes_and_scores_every_frame() {
     assert_eq!(log.matches("reusing").count(), 11, "{log}");
     let second = json(&out.join("results.json"));
     assert_eq!(first["cells"], second["cells"]);
+    // The probe's frames: 3 unless set, so saying 3 reuses every row; more frames make
+    // other holes, so no row scored over the old ones is reused, and the holes shrink.
+    let mut explicit = args.to_vec();
+    explicit.extend(["--probe-frames", "3"]);
+    let log = ok(&explicit);
+    assert_eq!(log.matches("reusing").count(), 11, "{log}");
+    let wider = ["eval", "--suite", suite.to_str().unwrap(), "--out", out.to_str().unwrap(), "--max-frames", "5", "--steps", "2",
+        "--threads", "1", "--policies", "baseline", "--probe-frames", "8"];
+    let log = ok(&wider);
+    assert!(!log.contains("reusing"), "{log}");
+    let third = json(&out.join("results.json"));
+    let pooled8 = third["pooled"].as_array().unwrap();
+    let copy8 = pooled8.iter().find(|r| r["row"] == "copy").unwrap();
+    let hole_frames8 = values(copy8, "holes_psnr");
+    assert!(hole_frames8 <= holes, "8 frames leave holes in no more frames than 3: {hole_frames8} against {holes}");
+    let fused_psnr = |p: &[Value]| p.iter().find(|r| r["row"] == "reproject_fused").unwrap()["psnr"]["mean"].as_f64().unwrap();
+    assert_ne!(fused_psnr(pooled8), fused_psnr(pooled), "the fused reference warps 8 frames, not 3");
     // Other settings are not confused with saved rows.
     let log = ok(&["eval", "--suite", suite.to_str().unwrap(), "--out", out.to_str().unwrap(), "--max-frames", "3", "--steps", "2",
         "--policies", "worldpack", "--no-references", "--threads", "1"]);
@@ -140,6 +157,7 @@ fn reduced_rollout_suite_runs_resumes_and_scores_every_frame() {
         assert!(text.contains("| **WorldPack** |") && text.contains("curves-abca.png"), "{text}");
         assert!(out.join("report/results/curves-aba.png").exists());
     }
+
     let _ = std::fs::remove_dir_all(&suite);
     let _ = std::fs::remove_dir_all(&out);
 }
@@ -281,6 +299,8 @@ fn bad_arguments_name_what_is_wrong() {
     assert!(e.contains("worldpak") && e.contains("worldmem_greedy"), "{e}");
     let e = err(&["probe", "--suite", suite.to_str().unwrap(), "--extra", "nodir"]);
     assert!(e.contains("NAME=DIR"), "{e}");
+    let e = err(&["eval", "--suite", suite.to_str().unwrap(), "--probe-frames", "0"]);
+    assert!(e.contains("--probe-frames"), "{e}");
     let _ = std::fs::remove_dir_all(&suite);
     let _ = std::fs::remove_dir_all(&empty);
     let _ = std::fs::remove_dir_all(&bad_out);

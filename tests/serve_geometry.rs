@@ -184,3 +184,22 @@ fn a_fusion_head_serves_frames_closer_to_the_world() {
     eprintln!("the way back: {fused:.2} dB with the fusion head, {alone:.2} without");
     assert!(fused > alone, "mean PSNR on the way back: {fused:.2} dB with the head, {alone:.2} without");
 }
+
+/// The served model fuses up to its manifest's `warp.frames` (32) observed
+/// frames into the warp, not the 3 it was trained with: after six observed
+/// steps ahead, a generated step warps more than three of them.
+#[test]
+fn the_served_model_warps_more_frames_than_it_was_trained_with() {
+    let model = concat!(env!("CARGO_MANIFEST_DIR"), "/fixtures/variants/worldpack_geometry_fused_1step");
+    let s = Server::start(&temp_store("served-warp"), &["--model", model, "--covisible"]);
+    let (_, c) = s.post("/v1/sessions", &json!({ "synthetic": { "seed": 3 } }));
+    let id = c["session"].as_u64().unwrap();
+    for _ in 0..5 {
+        let (code, r) = s.post(&format!("/v1/sessions/{id}/step"), &json!({ "action": { "forward": true }, "observe": true }));
+        assert_eq!(code, 200, "{r}");
+    }
+    let (code, r) = s.post(&format!("/v1/sessions/{id}/step"), &json!({ "action": { "forward": true } }));
+    assert_eq!(code, 200, "{r}");
+    let sources = r["selection"]["warp_frames"].as_array().unwrap();
+    assert!(sources.len() > 3 && sources.len() <= 6, "frames 0-5 have depth and face this view: {r}");
+}

@@ -78,6 +78,10 @@ pub struct Settings {
     /// Model rows whose autoencoder's reconstruction of the true frames,
     /// decode(encode(truth)), is scored as a row "NAME_autoencoder" each.
     pub reconstruct: Vec<String>,
+    /// The best-overlap observed frames the probe fuses: the `reproject_fused`
+    /// row and the holes mask every row is scored over (`probe::FUSED_FRAMES`
+    /// unless set; a geometry model's `warp.frames` compares it with the warp it is given).
+    pub probe_frames: usize,
 }
 
 /// What the run is doing, for a progress display.
@@ -103,11 +107,11 @@ pub fn weights_for(kind: PolicyKind) -> &'static str {
 
 /// How tables and charts name a row: the registry's label for a policy, a
 /// sentence for a reference, the name itself for an extra model.
-pub fn row_label(name: &str) -> String {
+pub fn row_label(name: &str, probe_frames: usize) -> String {
     match name {
         "copy" => "copy best-overlap observed frame".into(),
         "reproject" => "reproject it with depth".into(),
-        "reproject_fused" => format!("reproject the {} best frames, fused", crate::probe::FUSED_FRAMES),
+        "reproject_fused" => format!("reproject the {probe_frames} best frames, fused"),
         "composite" => "fused warp, baseline in its holes".into(),
         _ => memory::variant(name).map_or_else(|_| name.to_string(), |v| v.label.to_string()),
     }
@@ -136,10 +140,17 @@ struct RowKey {
     /// The per-frame scores a row carries (rows saved before the sharpness ratio lack it, and are recomputed).
     #[serde(default)]
     scores: String,
-    /// How a non-learned row makes its frames (`probe::REFERENCE_RULES`; rows saved under an older rule are recomputed).
+    /// How a non-learned row makes its frames (`probe::reference_rules`; rows saved under an older rule are recomputed).
     #[serde(default)]
     reference: Option<String>,
+    /// The frames whose fused warp makes the holes mask (rows saved before the setting used 3).
+    #[serde(default = "default_probe_frames")]
+    probe_frames: usize,
     feature_networks: [Option<String>; 3],
+}
+
+fn default_probe_frames() -> usize {
+    crate::probe::FUSED_FRAMES
 }
 
 // "holes": the PSNR and sharpness in the warp's holes (rows saved before them are recomputed).
@@ -217,7 +228,7 @@ pub fn evaluate(s: &Settings, progress: &dyn Fn(Progress)) -> Result<Evaluation,
     let lpips = s.lpips.as_deref().map(|p| Lpips::open(p, s.runtime).map_err(feature("--lpips"))).transpose()?;
     let dreamsim = s.dreamsim.as_deref().map(|p| Embedding::open(p, s.runtime).map_err(feature("--dreamsim"))).transpose()?;
     let fvd_net = s.fvd.as_deref().map(|p| VideoFeatures::open(p, s.runtime).map_err(feature("--fvd"))).transpose()?;
-    let scorer = Scorer { lpips: lpips.as_ref(), dreamsim: dreamsim.as_ref(), keep_frames: fvd_net.is_some(), capture: None, ..Scorer::default() };
+    let scorer = Scorer { lpips: lpips.as_ref(), dreamsim: dreamsim.as_ref(), keep_frames: fvd_net.is_some(), probe_frames: s.probe_frames, ..Scorer::default() };
     let networks = [&s.lpips, &s.dreamsim, &s.fvd].map(|p| p.as_ref().map(|p| p.display().to_string()));
     let mut extras = Vec::with_capacity(s.extra.len());
     for (name, dir) in &s.extra {
@@ -285,7 +296,7 @@ pub fn evaluate(s: &Settings, progress: &dyn Fn(Progress)) -> Result<Evaluation,
     if s.references {
         rows.push((Row { name: "copy".into(), predictor: Predictor::Copy }, None));
         rows.push((Row { name: "reproject".into(), predictor: Predictor::Reproject }, None));
-        rows.push((Row { name: "reproject_fused".into(), predictor: Predictor::ReprojectFused }, None));
+        rows.push((Row { name: "reproject_fused".into(), predictor: Predictor::ReprojectFused { frames: s.probe_frames } }, None));
         // Composite rows: the fused warp where it lands, a model row's prediction in its holes
         // (the composite reference uses the 4-frame baseline's).
         let wanted: Vec<String> = if s.composites.is_empty() { vec!["baseline".into()] } else { s.composites.clone() };
@@ -328,7 +339,8 @@ pub fn evaluate(s: &Settings, progress: &dyn Fn(Progress)) -> Result<Evaluation,
             sampled_latents: m.is_some_and(|m| m.keeps_sampled_latents()),
             noise_seeding: "per frame".into(),
             scores: SCORES.into(),
-            reference: (!matches!(row.predictor, Predictor::Model { .. })).then(|| crate::probe::REFERENCE_RULES.to_string()),
+            reference: (!matches!(row.predictor, Predictor::Model { .. })).then(|| crate::probe::reference_rules(s.probe_frames)),
+            probe_frames: s.probe_frames,
             feature_networks: networks.clone(),
         };
         let path = rows_dir.join(format!("{}.json", row.name));
@@ -382,7 +394,7 @@ pub fn evaluate(s: &Settings, progress: &dyn Fn(Progress)) -> Result<Evaluation,
         "paired_against": against,
         "strata": &strata,
         "strip": strip,
-        "labels": results.iter().map(|(n, _)| (n.clone(), row_label(n))).collect::<BTreeMap<_, _>>(),
+        "labels": results.iter().map(|(n, _)| (n.clone(), row_label(n, s.probe_frames))).collect::<BTreeMap<_, _>>(),
         "fvd": results.iter().map(|(n, r)| (n.clone(), &r.fvd)).collect::<BTreeMap<_, _>>(),
         "feature_networks": { "lpips": networks[0], "dreamsim": networks[1], "fvd": networks[2] },
         "curves": summary.curves,
@@ -409,7 +421,7 @@ fn strip(
     let traj = &trajs[ti];
     let leg = rollout_frames(traj, s.max_frames);
     let columns = crate::strip::spread(leg.len(), s.strip_frames);
-    let scorer = Scorer { keep_frames: true, ..Scorer::default() };
+    let scorer = Scorer { keep_frames: true, probe_frames: s.probe_frames, ..Scorer::default() };
     let mut generated: Vec<Vec<Vec<u8>>> = Vec::new();
     for name in &s.strip {
         let (row, model) = rows.iter().find(|(r, _)| &r.name == name).expect("strip rows were checked");

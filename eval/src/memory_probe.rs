@@ -178,7 +178,7 @@ pub fn probe(o: &Settings, progress: &dyn Fn(Progress)) -> Result<Report, Progra
     }
     rows.push(Row { name: COPY.into(), predictor: Predictor::Copy });
     rows.push(Row { name: REPROJECT.into(), predictor: Predictor::Reproject });
-    rows.push(Row { name: REPROJECT_FUSED.into(), predictor: Predictor::ReprojectFused });
+    rows.push(Row { name: REPROJECT_FUSED.into(), predictor: Predictor::ReprojectFused { frames: crate::probe::FUSED_FRAMES } });
     row_models.extend([None, None, None]);
     for name in std::iter::once("baseline").chain(o.composites.iter().map(String::as_str)) {
         let Some((_, policy, m)) = models.iter().find(|m| m.0 == name) else {

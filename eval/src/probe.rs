@@ -37,9 +37,9 @@ pub enum Predictor<'a> {
     Copy,
     /// That frame warped into the target pose with its depth.
     Reproject,
-    /// The [`FUSED_FRAMES`] frames of largest overlap warped behind one
-    /// z-buffer, cracks filled from their neighbours.
-    ReprojectFused,
+    /// The `frames` frames of largest overlap warped behind one z-buffer,
+    /// cracks filled from their neighbours.
+    ReprojectFused { frames: usize },
     /// The composite reference: that fused warp where it lands (no filling),
     /// a model's prediction in its holes.
     Composite { model: &'a Model, policy: Policy, sampler: Sampler },
@@ -53,11 +53,15 @@ pub enum Predictor<'a> {
 }
 
 
-/// Frames the fused reference warps together.
+/// Frames the fused reference warps together, and whose warp makes the
+/// holes mask, unless `worldpack eval --probe-frames` says otherwise.
 pub const FUSED_FRAMES: usize = 3;
 
-/// How the non-learned rows make a frame; a saved reference row made by another rule is recomputed.
-pub const REFERENCE_RULES: &str = "model::warp (depth 0 at infinity); holes keep the best frame's pixel; fused: 3 frames, 2 fill rounds";
+/// How the non-learned rows make a frame when the fused reference warps
+/// `frames`; a saved reference row made by another rule is recomputed.
+pub fn reference_rules(frames: usize) -> String {
+    format!("model::warp (depth 0 at infinity); holes keep the best frame's pixel; fused: {frames} frames, 2 fill rounds")
+}
 
 impl<'a> Predictor<'a> {
     /// The model a learned row runs (none for the non-learned references).
@@ -67,7 +71,7 @@ impl<'a> Predictor<'a> {
             | Predictor::Composite { model, .. }
             | Predictor::PlanWarps { model, .. }
             | Predictor::Reconstruct { model } => Some(*model),
-            Predictor::Copy | Predictor::Reproject | Predictor::ReprojectFused => None,
+            Predictor::Copy | Predictor::Reproject | Predictor::ReprojectFused { .. } => None,
         }
     }
 
@@ -78,7 +82,7 @@ impl<'a> Predictor<'a> {
             | Predictor::Composite { policy, .. }
             | Predictor::PlanWarps { policy, .. } => policy.clone(),
             Predictor::Copy | Predictor::Reproject | Predictor::Reconstruct { .. } => Policy::best_overlap(),
-            Predictor::ReprojectFused => Policy::best_overlap_frames(FUSED_FRAMES),
+            Predictor::ReprojectFused { frames } => Policy::best_overlap_frames(*frames),
         }
     }
 
@@ -261,7 +265,7 @@ pub fn reference_image(traj: &Trajectory, how: &Predictor, plan: &ContextPlan, t
     let src = plan.selected().next().map_or(t - 1, |(_, f)| f.id as usize);
     match how {
         Predictor::Reproject => reproject(traj.frame(src), traj.depth(src), &traj.intrinsics, &traj.poses[src], &traj.poses[t]).0,
-        Predictor::ReprojectFused => match warp_sources(traj, plan) {
+        Predictor::ReprojectFused { .. } => match warp_sources(traj, plan) {
             sources if sources.is_empty() => traj.frame(src).to_vec(),
             sources => reproject_fused(&sources, &traj.poses[t]).0,
         },
@@ -389,7 +393,7 @@ pub fn probe_trajectory(
                     progress(1);
                 })?;
             }
-            Predictor::Copy | Predictor::Reproject | Predictor::ReprojectFused => {
+            Predictor::Copy | Predictor::Reproject | Predictor::ReprojectFused { .. } => {
                 for (&t, plan) in targets.iter().zip(plans) {
                     out.push(score(t, &reference_image(traj, &row.predictor, plan, t)));
                     progress(1);

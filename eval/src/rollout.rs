@@ -73,7 +73,6 @@ struct Run<'a> {
 }
 
 /// How generated frames are scored, and whether they are kept (for FVD).
-#[derive(Default)]
 pub struct Scorer<'a> {
     pub lpips: Option<&'a Lpips>,
     pub dreamsim: Option<&'a Embedding>,
@@ -83,6 +82,15 @@ pub struct Scorer<'a> {
     /// [`landed_masks`] by trajectory and frame range: the same for every row,
     /// so made once for all the rows this scorer scores.
     pub landed: RefCell<HashMap<(String, usize, usize), LandedMasks>>,
+    /// The best-overlap observed frames whose fused warp makes the holes mask
+    /// (and a composite row's overlay).
+    pub probe_frames: usize,
+}
+
+impl Default for Scorer<'_> {
+    fn default() -> Self {
+        Scorer { lpips: None, dreamsim: None, keep_frames: false, capture: None, landed: Default::default(), probe_frames: FUSED_FRAMES }
+    }
 }
 
 /// One trajectory's [`landed_masks`], shared by the rows that score it.
@@ -133,13 +141,14 @@ impl Capture<'_> {
     }
 }
 
-/// Where the fused warp of the best observed frames lands in each frame of
-/// `frames` (the probe's validity mask). It depends on the exploration alone,
-/// so every row is scored over the same holes and the holes measure pairs.
-fn landed_masks(traj: &Trajectory, frames: std::ops::Range<usize>) -> Result<Vec<Vec<bool>>, ProbeError> {
+/// Where the fused warp of the `probe_frames` best observed frames lands in
+/// each frame of `frames` (the probe's validity mask). It depends on the
+/// exploration alone, so every row is scored over the same holes and the
+/// holes measure pairs.
+fn landed_masks(traj: &Trajectory, frames: std::ops::Range<usize>, probe_frames: usize) -> Result<Vec<Vec<bool>>, ProbeError> {
     let frusta = traj.frusta()?;
     let store = observed(&frusta, frames.start)?;
-    let policy = Policy::best_overlap_frames(FUSED_FRAMES);
+    let policy = Policy::best_overlap_frames(probe_frames);
     Ok(frames.map(|t| fused_warp(traj, &store.select(&policy, &frusta[t], None).0, t).mask).collect())
 }
 
@@ -150,7 +159,7 @@ impl Scorer<'_> {
         if let Some(masks) = self.landed.borrow().get(&key) {
             return Ok(masks.clone());
         }
-        let masks = std::rc::Rc::new(landed_masks(traj, frames)?);
+        let masks = std::rc::Rc::new(landed_masks(traj, frames, self.probe_frames)?);
         self.landed.borrow_mut().insert(key, masks.clone());
         Ok(masks)
     }
@@ -218,7 +227,7 @@ pub fn rollout_as(
 ) -> Result<RowOutput, ProbeError> {
     assert_eq!(trajs.len(), suite_index.len(), "one suite index per trajectory");
     match &row.predictor {
-        Predictor::Copy | Predictor::Reproject | Predictor::ReprojectFused => {
+        Predictor::Copy | Predictor::Reproject | Predictor::ReprojectFused { .. } => {
             let (scores, frames) = trajs.iter().map(|t| reference(t, &row.predictor, max_frames, scorer, progress)).collect::<Result<Vec<_>, _>>()?.into_iter().unzip();
             Ok(RowOutput { scores, frames })
         }
@@ -243,7 +252,7 @@ pub fn rollout_as(
             }
             let covisibility = policy.covisibility.map(|c| c.validated().map_err(|e| ProbeError::Invalid(e.to_string()))).transpose()?;
             // A composite overlays the fused warp of the best observed frames and re-encodes the result.
-            let composite = matches!(row.predictor, Predictor::Composite { .. }).then(|| Policy::best_overlap_frames(FUSED_FRAMES));
+            let composite = matches!(row.predictor, Predictor::Composite { .. }).then(|| Policy::best_overlap_frames(scorer.probe_frames));
             let warps = warp_policy.is_some() || composite.is_some();
             let mut runs = trajs
                 .iter()

@@ -92,6 +92,10 @@ pub struct Options {
     /// An --extra row whose fusion-head model keeps each generated frame's sampled latent instead of re-encoding the blend, as `serve --sampled-latents` (repeatable).
     #[arg(long = "sampled-latents")]
     pub sampled_latents: Vec<String>,
+    /// The best-overlap observed frames the probe fuses: the reproject_fused row and the holes
+    /// mask every row is scored over. A geometry model's warp.frames compares it with the warp it is given.
+    #[arg(long, default_value_t = eval::probe::FUSED_FRAMES, value_parser = count(1, 64))]
+    pub probe_frames: usize,
 }
 
 impl Options {
@@ -118,6 +122,7 @@ impl Options {
             strip_frames: self.strip_frames,
             composites: self.composites.clone(),
             reconstruct: self.reconstruct.clone(),
+            probe_frames: self.probe_frames,
             covisible: self.covisible.clone(),
             plan_warps: self.plan_warps.clone(),
             only: self.only.clone(),

@@ -195,6 +195,11 @@ def main() -> None:
                    "the frame shown takes the warp's luma detail beyond its 3x3 local mean, a half where their 5x5 local "
                    "means lie T apart (0: off)")
 
+    p = sub.add_parser("warp-frames", help="set, in place, how many best-overlap observed frames the runtime fuses "
+                       "into a geometry model's warp input (manifest denoiser.warp.frames)")
+    p.add_argument("--model", type=Path, required=True, help="a geometry model folder")
+    p.add_argument("--frames", type=int, required=True, help="frames to fuse, at least 1 (the co-visible stage keeps 32 candidates)")
+
     p = sub.add_parser("sharpen-decoder", help="fine-tune run/autoencoder.pt's decoder for sharp frames, the encoder "
                        "(so the latent space) frozen (sharpen.py; resumes from run/decoder-sharp.pt)")
     common(p)
@@ -251,6 +256,10 @@ def main() -> None:
         from . import fusion
 
         fusion.pair(a.kept, a.shown, a.out, a.data, a.hole_fill, a.hole_detail, a.warp_detail)
+    elif a.stage == "warp-frames":
+        from . import export
+
+        export.set_warp_frames(a.model, a.frames)
     elif a.stage == "sharpen-decoder":
         from . import sharpen
 
