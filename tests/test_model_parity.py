@@ -312,6 +312,27 @@ def test_committed_manifest_is_consistent():
     assert wm.validate(MANIFEST) == []
 
 
+def test_warp_frames_sets_the_served_count_and_keeps_the_trained_one(tmp_path):
+    """`model.sh warp-frames`: only the manifest's warp count changes; a model without the warp input is refused."""
+    geometry = tmp_path / "geometry"
+    geometry.mkdir()
+    source = json.loads((ROOT / "fixtures" / "variants" / "worldpack_geometry" / "manifest.json").read_text())
+    (geometry / "manifest.json").write_text(json.dumps(source))
+    wm.set_warp_frames(geometry, 12)
+    changed = json.loads((geometry / "manifest.json").read_text())
+    assert changed["denoiser"]["warp"]["frames"] == 12 and changed["denoiser"]["warp"]["trained_frames"] == "1 to 3"
+    changed["denoiser"]["warp"] = source["denoiser"]["warp"]
+    assert changed == source, "nothing else in the manifest moves"
+    assert wm.validate(json.loads((geometry / "manifest.json").read_text())) == []
+    with pytest.raises(SystemExit, match="--frames"):
+        wm.set_warp_frames(geometry, 0)
+    plain = tmp_path / "plain"
+    plain.mkdir()
+    (plain / "manifest.json").write_text((ROOT / "fixtures" / "variants" / "baseline" / "manifest.json").read_text())
+    with pytest.raises(SystemExit, match="no warp input"):
+        wm.set_warp_frames(plain, 8)
+
+
 def test_sd_vae_shaped_manifest_is_accepted():
     """A CDiT-B/2 over the SD VAE (28x28x4 latents, scale 0.18215) at rates 1/4/16."""
     example = json.loads((ROOT / "fixtures" / "examples" / "sd-vae-cdit-b2.manifest.json").read_text())

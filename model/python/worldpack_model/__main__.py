@@ -257,9 +257,9 @@ def main() -> None:
 
         fusion.pair(a.kept, a.shown, a.out, a.data, a.hole_fill, a.hole_detail, a.warp_detail)
     elif a.stage == "warp-frames":
-        from . import export
+        from . import manifest
 
-        export.set_warp_frames(a.model, a.frames)
+        manifest.set_warp_frames(a.model, a.frames)
     elif a.stage == "sharpen-decoder":
         from . import sharpen
 

@@ -551,24 +551,3 @@ def warp_cases(data: Path, ae) -> dict[str, np.ndarray]:
             "fused_rgb": rgb[fsrc], "fused_depth_mm": depth[fsrc], "fused_src_c2w": poses[fsrc], "fused_dst_c2w": poses[dst[0]],
             "fused_warped": fused.numpy()[0], "fused_mask": fmask.numpy()[0].astype(np.uint8)}
 
-
-def set_warp_frames(model: Path, frames: int) -> None:
-    """Sets, in place, how many best-overlap observed frames the runtime warps
-    behind one z-buffer into `model`'s warp input (`denoiser.warp.frames`).
-    Training drew 1 to `PlannedLatents.WARP_FRAMES` of them per target; the
-    denoiser and the head see one fused image and where it landed, so more
-    frames land more of memory's own pixels and leave fewer holes. The
-    manifest keeps the training count beside the served one."""
-    path = model / "manifest.json"
-    if not path.is_file():
-        raise SystemExit(f"--model: {model} has no manifest.json")
-    manifest = json.loads(path.read_text())
-    warp = manifest.get("denoiser", {}).get("warp")
-    if warp is None:
-        raise SystemExit(f"--model: {model} has no warp input (not a geometry model)")
-    if frames < 1:
-        raise SystemExit(f"--frames: at least 1, got {frames}")
-    warp.setdefault("trained_frames", f"1 to {wdata.PlannedLatents.WARP_FRAMES}")
-    warp["frames"] = frames
-    path.write_text(json.dumps(manifest, indent=1))
-    print(f"{model}: fuses the {frames} best-overlap observed frames (trained on {warp['trained_frames']})")
