@@ -550,4 +550,3 @@ def warp_cases(data: Path, ae) -> dict[str, np.ndarray]:
             "warped": warped.numpy(), "mask": mask.numpy().astype(np.uint8), "input": inp.numpy().astype(np.float32),
             "fused_rgb": rgb[fsrc], "fused_depth_mm": depth[fsrc], "fused_src_c2w": poses[fsrc], "fused_dst_c2w": poses[dst[0]],
             "fused_warped": fused.numpy()[0], "fused_mask": fmask.numpy()[0].astype(np.uint8)}
-
