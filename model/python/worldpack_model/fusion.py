@@ -36,7 +36,8 @@ import torch
 from torch import nn
 import torch.nn.functional as F
 
-from .losses import LUMA, PatchDiscriminator, adaptive_weight, gradient_difference, hinge_discriminator, sharpness_ratio
+from .losses import (LUMA, PatchDiscriminator, adaptive_weight, detail_energy_difference, gradient_difference,
+                     hinge_discriminator, sharpness_ratio)
 from .train import resume
 
 INPUTS = ("predicted", "reference", "landed")  # the order model/src/manifest.rs expects
@@ -75,19 +76,25 @@ class HeadPair(nn.Module):
     takes the decoded frame's detail in the warp's holes
     (`detail_in_holes`). `warp_detail` T > 0: where the warp landed and
     agrees with the frame shown to within about T 8-bit levels, the frame
-    shown takes the warp's luma detail (`warp_detail_where_agreed`)."""
+    shown takes the warp's luma detail (`warp_detail_where_agreed`).
+    `shown_in_holes`: the `shown` head paints the frame shown only in the
+    warp's holes (a head trained for detail where no stored frame has the
+    pixels, `train`'s `texture_weight`); where the warp landed it is the
+    kept head's frame."""
 
     def __init__(self, shown: FusionHead, kept: FusionHead, hole_fill: int = 0, hole_detail: int = 0,
-                 warp_detail: float = 0.0):
+                 warp_detail: float = 0.0, shown_in_holes: bool = False):
         super().__init__()
         self.shown, self.kept, self.hole_fill, self.hole_detail = shown, kept, hole_fill, hole_detail
-        self.warp_detail = warp_detail
+        self.warp_detail, self.shown_in_holes = warp_detail, shown_in_holes
 
     def forward(self, predicted, reference, landed):
         head = self.kept(predicted, reference, landed)
         kept = fill_holes_from_warp(head, reference, landed, self.hole_fill) if self.hole_fill else head
         # One head for both frames (the same module twice) runs once.
         shown = head if self.shown is self.kept else self.shown(predicted, reference, landed)
+        if self.shown_in_holes:
+            shown = head * landed + shown * (1 - landed)
         if self.hole_detail:
             shown = detail_in_holes(shown, predicted, landed, self.hole_detail)
         if self.warp_detail:
@@ -213,7 +220,7 @@ def psnr_db(a: torch.Tensor, b: torch.Tensor) -> float:
 
 def train(data: list[Path], run: Path, steps: int, batch: int, lr: float, minutes: float | None, width: int, seed: int = 0,
           edge_weight: float = 0.0, edge_landed: float = 1.0, adversarial_weight: float = 0.0,
-          adversarial_start: int = 500, init_from: Path | None = None) -> None:
+          adversarial_start: int = 500, init_from: Path | None = None, texture_weight: float = 0.0) -> None:
     """Trains the head on `data` (`worldpack fusion-data` folders); the last
     tenth of each folder's examples (its suite's last trajectories) is held
     out and scored against the decoder's frame, the reference and their
@@ -228,6 +235,11 @@ def train(data: list[Path], run: Path, steps: int, batch: int, lr: float, minute
     VQGAN's adaptive weight (losses.py) from `adversarial_start` on. Where the
     warp has no pixels the regression terms settle for the mean of what could
     be there; the discriminator asks for something that could be.
+
+    `texture_weight` > 0 adds, in the warp's holes only, the patch-wise
+    detail energy term (losses.detail_energy_difference): where no stored
+    frame has the pixels, a head for the frame shown is asked for detail as
+    strong as the truth's rather than its mean.
 
     `init_from` (a run folder) starts a new run from that run's head, with a
     fresh optimiser: a pix2pix head fine-tuned from a regression one."""
@@ -258,6 +270,8 @@ def train(data: list[Path], run: Path, steps: int, batch: int, lr: float, minute
               "edge_weight": edge_weight, "edge_landed": edge_landed}
     if adversarial:
         config |= {"adversarial_weight": adversarial_weight, "adversarial_start": adversarial_start}
+    if texture_weight > 0:
+        config["texture_weight"] = texture_weight
     if init_from is not None:
         config["init_from"] = str(init_from)
     if step:
@@ -296,6 +310,8 @@ def train(data: list[Path], run: Path, steps: int, batch: int, lr: float, minute
         if edge_weight > 0:
             where = None if edge_landed == 1 else 1 - (1 - edge_landed) * m
             loss = loss + edge_weight * gradient_difference(out, t, where)
+        if texture_weight > 0:
+            loss = loss + texture_weight * detail_energy_difference(out, t, 1 - m)
         weight = 0.0
         if adversarial and step >= adversarial_start:
             g_adv = -disc(torch.cat([out, r, m], 1)).mean()
@@ -339,6 +355,8 @@ def loss_name(cfg: dict) -> str:
         name += f" + {cfg['edge_weight']} x gradient difference (Mathieu et al. 2016)"
         if cfg.get("edge_landed", 1) != 1:
             name += f", weighted {cfg['edge_landed']} where the warp landed"
+    if cfg.get("texture_weight"):
+        name += f" + {cfg['texture_weight']} x patch detail energy in the warp's holes (after EnhanceNet's texture loss)"
     if cfg.get("adversarial_weight"):
         name += (f" + {cfg['adversarial_weight']} x conditional PatchGAN hinge (pix2pix, spectral norm) under VQGAN's adaptive weight, "
                  f"from step {cfg['adversarial_start']}")
@@ -404,14 +422,16 @@ def export(run: Path, model: Path, out: Path, data: Path | None = None) -> None:
 
 
 def pair(kept: Path, shown: Path, out: Path, data: Path | None = None, hole_fill: int = 0, hole_detail: int = 0,
-         warp_detail: float = 0.0) -> None:
+         warp_detail: float = 0.0, shown_in_holes: bool = False) -> None:
     """A copy of the model folder `kept` at `out` whose head is a `HeadPair`:
     the frame shown is `shown`'s head's, with the decoded frame's detail in
     the warp's holes when `hole_detail` (an odd window) is set; the frame
     the memory keeps is `kept`'s own head's (the graph's second output,
     `kept`), its holes filled from the warp when `hole_fill` is set.
     `warp_detail` T > 0: the frame shown takes the warp's luma detail where the
-    warp landed and agrees with it to within about T 8-bit levels."""
+    warp landed and agrees with it to within about T 8-bit levels.
+    `shown_in_holes`: `shown`'s head makes the frame shown in the warp's
+    holes only, `kept`'s where the warp landed."""
     for flag, k in (("--hole-fill", hole_fill), ("--hole-detail", hole_detail)):
         if k and (k < 3 or k % 2 == 0):
             raise SystemExit(f"{flag}: an odd window of at least 3 pixels, or 0 for none; got {k}")
@@ -433,7 +453,10 @@ def pair(kept: Path, shown: Path, out: Path, data: Path | None = None, hole_fill
         shutil.copytree(kept, staged)
         same = architecture(shown_head) == architecture(kept_head) and all(
             torch.equal(a, b) for a, b in zip(shown_head.state_dict().values(), kept_head.state_dict().values()))
-        heads = HeadPair(kept_head if same else shown_head, kept_head, hole_fill, hole_detail, warp_detail).eval()
+        if same and shown_in_holes:
+            raise SystemExit("--shown-in-holes: --shown has the same head as --kept; it would change nothing")
+        heads = HeadPair(kept_head if same else shown_head, kept_head, hole_fill, hole_detail, warp_detail,
+                         shown_in_holes).eval()
         args = reference_images(data, h, w)
         outputs = ("image", "kept")
         onnx.save(to_onnx(heads, args, list(INPUTS), list(outputs)), staged / kept_spec["file"])
@@ -445,7 +468,9 @@ def pair(kept: Path, shown: Path, out: Path, data: Path | None = None, hole_fill
         spec["outputs"] = [kept_spec["outputs"][0], dict(kept_spec["outputs"][0], name="kept",
                                                          meaning="the frame the memory keeps (re-encoded as later frames' context), RGB")]
         spec["architecture"] = (f"one head for both frames: {kept_spec['architecture']}" if same else
-                                f"two heads on the same inputs, one for the frame shown and one for the frame kept; each: {kept_spec['architecture']}") + (
+                                f"two heads on the same inputs, one for the frame shown" + (" in the warp's holes (where it landed, the frame kept's)"
+                                                                        if shown_in_holes else "") +
+            f" and one for the frame kept; each: {kept_spec['architecture']}") + (
             f"; the kept frame's {hole_fill}x{hole_fill} local mean in the warp's holes replaced by the warp's colours diffused into them"
             if hole_fill else "") + (
             f"; the frame shown takes the decoded frame's detail (beyond its {hole_detail}x{hole_detail} local mean) in the warp's holes"
@@ -455,7 +480,8 @@ def pair(kept: Path, shown: Path, out: Path, data: Path | None = None, hole_fill
         spec["parameters"] = kept_spec["parameters"] + (0 if same else shown_spec["parameters"])
         spec["pair"] = {"shown": {"model": shown_spec.get("model", shown.name), "trained": shown_spec.get("trained")},
                         "kept": {"model": kept_spec.get("model", kept.name), "trained": kept_spec.get("trained")},
-                        "hole_fill": hole_fill, "hole_detail": hole_detail, "warp_detail": warp_detail}
+                        "hole_fill": hole_fill, "hole_detail": hole_detail, "warp_detail": warp_detail,
+                        "shown_where": "holes" if shown_in_holes else "everywhere"}
         manifest["name"] = out.name
         manifest["fusion"] = spec
         (staged / "manifest.json").write_text(json.dumps(manifest, indent=1))
