@@ -167,6 +167,8 @@ def main() -> None:
                    help="the step from which the head feels the discriminator (it trains from step 0)")
     p.add_argument("--texture-weight", type=float, default=0.0,
                    help="weight of the patch-wise detail energy term in the warp's holes (after EnhanceNet's texture loss); 0: off")
+    p.add_argument("--landed-weight", type=float, default=1.0,
+                   help="weight of the regression terms where the warp landed (0: a head for the holes only)")
     p.add_argument("--init-from", type=Path,
                    help="a fusion-train run folder whose head this run starts from (a fresh optimiser, step 0)")
     p.add_argument("--minutes", type=float, help="stop (and checkpoint) after this much wall time")
@@ -196,8 +198,8 @@ def main() -> None:
     p.add_argument("--warp-detail", type=float, default=0.0, help="a tolerance T in 8-bit levels: where the warp landed, "
                    "the frame shown takes the warp's luma detail beyond its 3x3 local mean, a half where their 5x5 local "
                    "means lie T apart (0: off)")
-    p.add_argument("--shown-in-holes", action="store_true", help="--shown's head makes the frame shown only in the "
-                   "warp's holes; where the warp landed it is --kept's (a head trained with --texture-weight)")
+    p.add_argument("--holes", type=Path, help="a fused model folder whose head's luma detail the frame shown takes in "
+                   "the warp's holes (a head trained with fusion-train --texture-weight)")
 
     p = sub.add_parser("warp-frames", help="set, in place, how many best-overlap observed frames the runtime fuses "
                        "into a geometry model's warp input (manifest denoiser.warp.frames)")
@@ -247,7 +249,8 @@ def main() -> None:
 
         fusion.train(a.data, a.run, a.steps, a.batch, a.lr, a.minutes, a.width, edge_weight=a.edge_weight,
                      edge_landed=a.edge_landed, adversarial_weight=a.adversarial_weight,
-                     adversarial_start=a.adversarial_start, init_from=a.init_from, texture_weight=a.texture_weight)
+                     adversarial_start=a.adversarial_start, init_from=a.init_from, texture_weight=a.texture_weight,
+                     landed_weight=a.landed_weight)
     elif a.stage == "fusion-export":
         from . import fusion
 
@@ -259,7 +262,7 @@ def main() -> None:
     elif a.stage == "fusion-pair":
         from . import fusion
 
-        fusion.pair(a.kept, a.shown, a.out, a.data, a.hole_fill, a.hole_detail, a.warp_detail, a.shown_in_holes)
+        fusion.pair(a.kept, a.shown, a.out, a.data, a.hole_fill, a.hole_detail, a.warp_detail, a.holes)
     elif a.stage == "warp-frames":
         from . import manifest
 

@@ -77,26 +77,25 @@ class HeadPair(nn.Module):
     (`detail_in_holes`). `warp_detail` T > 0: where the warp landed and
     agrees with the frame shown to within about T 8-bit levels, the frame
     shown takes the warp's luma detail (`warp_detail_where_agreed`).
-    `shown_in_holes`: the `shown` head paints the frame shown only in the
-    warp's holes (a head trained for detail where no stored frame has the
-    pixels, `train`'s `texture_weight`); where the warp landed it is the
-    kept head's frame."""
+    `holes`, a third head (one trained for detail where no stored frame has
+    the pixels, `train`'s `texture_weight`): in the warp's holes the frame
+    shown takes its luma detail (`luma_detail_in_holes`)."""
 
     def __init__(self, shown: FusionHead, kept: FusionHead, hole_fill: int = 0, hole_detail: int = 0,
-                 warp_detail: float = 0.0, shown_in_holes: bool = False):
+                 warp_detail: float = 0.0, holes: FusionHead | None = None):
         super().__init__()
         self.shown, self.kept, self.hole_fill, self.hole_detail = shown, kept, hole_fill, hole_detail
-        self.warp_detail, self.shown_in_holes = warp_detail, shown_in_holes
+        self.warp_detail, self.holes = warp_detail, holes
 
     def forward(self, predicted, reference, landed):
         head = self.kept(predicted, reference, landed)
         kept = fill_holes_from_warp(head, reference, landed, self.hole_fill) if self.hole_fill else head
         # One head for both frames (the same module twice) runs once.
         shown = head if self.shown is self.kept else self.shown(predicted, reference, landed)
-        if self.shown_in_holes:
-            shown = head * landed + shown * (1 - landed)
         if self.hole_detail:
             shown = detail_in_holes(shown, predicted, landed, self.hole_detail)
+        if self.holes is not None:
+            shown = luma_detail_in_holes(shown, self.holes(predicted, reference, landed), landed)
         if self.warp_detail:
             shown = warp_detail_where_agreed(shown, reference, landed, self.warp_detail)
         return shown, kept
@@ -138,6 +137,19 @@ def detail_in_holes(frame, predicted, landed, k: int):
     return frame + ((predicted - pool(predicted)) - (frame - pool(frame))) * (1 - landed)
 
 
+def luma_detail_in_holes(frame, painted, landed):
+    """`frame` whose luma detail (beyond its 3x3 local mean) in the warp's
+    holes is `painted`'s, its colours and local mean kept.
+
+    `painted` comes from a head trained to put detail as strong as the
+    truth's where no stored frame has the pixels; its colours there are
+    less sure than its edges (a luma-only detail term leaves them free), so
+    only its luma detail is taken, as the warp's is where it agrees."""
+    luma = lambda x: (x * LUMA.to(x.dtype)).sum(1, keepdim=True)
+    detail = lambda x: luma(x) - local_mean(luma(x), 3)
+    return frame + (detail(painted) - detail(frame)) * (1 - landed)
+
+
 def warp_detail_where_agreed(frame, reference, landed, tolerance: float):
     """`frame` that, where the warp landed, takes the warp's luma detail
     (beyond its 3x3 local mean) in the measure that the two frames' 5x5
@@ -160,8 +172,8 @@ def warp_detail_where_agreed(frame, reference, landed, tolerance: float):
 def head_of(model: Path, part: str = "kept") -> tuple[FusionHead, dict]:
     """The fusion head of an exported model folder, rebuilt from its
     fusion.onnx (the initializers keep the PyTorch names), and its manifest
-    entry as a single head's. Of a head pair, the head `part` ("shown" or
-    "kept"), with the model and training the pair records for it."""
+    entry as a single head's. Of a head pair, the head `part` ("shown",
+    "kept" or "holes"), with the model and training the pair records for it."""
     import onnx
     from onnx import numpy_helper
 
@@ -220,7 +232,8 @@ def psnr_db(a: torch.Tensor, b: torch.Tensor) -> float:
 
 def train(data: list[Path], run: Path, steps: int, batch: int, lr: float, minutes: float | None, width: int, seed: int = 0,
           edge_weight: float = 0.0, edge_landed: float = 1.0, adversarial_weight: float = 0.0,
-          adversarial_start: int = 500, init_from: Path | None = None, texture_weight: float = 0.0) -> None:
+          adversarial_start: int = 500, init_from: Path | None = None, texture_weight: float = 0.0,
+          landed_weight: float = 1.0) -> None:
     """Trains the head on `data` (`worldpack fusion-data` folders); the last
     tenth of each folder's examples (its suite's last trajectories) is held
     out and scored against the decoder's frame, the reference and their
@@ -239,7 +252,9 @@ def train(data: list[Path], run: Path, steps: int, batch: int, lr: float, minute
     `texture_weight` > 0 adds, in the warp's holes only, the patch-wise
     detail energy term (losses.detail_energy_difference): where no stored
     frame has the pixels, a head for the frame shown is asked for detail as
-    strong as the truth's rather than its mean.
+    strong as the truth's rather than its mean. `landed_weight` (in [0, 1])
+    weighs the regression terms where the warp landed: 0 trains a head
+    whose frame is used in the holes only (`HeadPair`'s `holes`).
 
     `init_from` (a run folder) starts a new run from that run's head, with a
     fresh optimiser: a pix2pix head fine-tuned from a regression one."""
@@ -272,6 +287,8 @@ def train(data: list[Path], run: Path, steps: int, batch: int, lr: float, minute
         config |= {"adversarial_weight": adversarial_weight, "adversarial_start": adversarial_start}
     if texture_weight > 0:
         config["texture_weight"] = texture_weight
+    if landed_weight != 1:
+        config["landed_weight"] = landed_weight
     if init_from is not None:
         config["init_from"] = str(init_from)
     if step:
@@ -306,9 +323,13 @@ def train(data: list[Path], run: Path, steps: int, batch: int, lr: float, minute
         for g in opt.param_groups:
             g["lr"] = lr * 0.5 * (1 + math.cos(math.pi * step / steps))
         out = head(p, r, m)
-        loss = F.mse_loss(out, t)
+        if landed_weight == 1:
+            loss = F.mse_loss(out, t)
+        else:
+            weight_map = 1 - (1 - landed_weight) * m
+            loss = ((out - t).pow(2) * weight_map).sum() / (weight_map.sum() * out.shape[1]).clamp(min=1e-6)
         if edge_weight > 0:
-            where = None if edge_landed == 1 else 1 - (1 - edge_landed) * m
+            where = None if edge_landed == 1 and landed_weight == 1 else (1 - (1 - edge_landed) * m) * (1 - (1 - landed_weight) * m)
             loss = loss + edge_weight * gradient_difference(out, t, where)
         if texture_weight > 0:
             loss = loss + texture_weight * detail_energy_difference(out, t, 1 - m)
@@ -355,6 +376,8 @@ def loss_name(cfg: dict) -> str:
         name += f" + {cfg['edge_weight']} x gradient difference (Mathieu et al. 2016)"
         if cfg.get("edge_landed", 1) != 1:
             name += f", weighted {cfg['edge_landed']} where the warp landed"
+    if cfg.get("landed_weight", 1) != 1:
+        name += f", weighted {cfg['landed_weight']} where the warp landed"
     if cfg.get("texture_weight"):
         name += f" + {cfg['texture_weight']} x patch detail energy in the warp's holes (after EnhanceNet's texture loss)"
     if cfg.get("adversarial_weight"):
@@ -422,7 +445,7 @@ def export(run: Path, model: Path, out: Path, data: Path | None = None) -> None:
 
 
 def pair(kept: Path, shown: Path, out: Path, data: Path | None = None, hole_fill: int = 0, hole_detail: int = 0,
-         warp_detail: float = 0.0, shown_in_holes: bool = False) -> None:
+         warp_detail: float = 0.0, holes: Path | None = None) -> None:
     """A copy of the model folder `kept` at `out` whose head is a `HeadPair`:
     the frame shown is `shown`'s head's, with the decoded frame's detail in
     the warp's holes when `hole_detail` (an odd window) is set; the frame
@@ -430,8 +453,8 @@ def pair(kept: Path, shown: Path, out: Path, data: Path | None = None, hole_fill
     `kept`), its holes filled from the warp when `hole_fill` is set.
     `warp_detail` T > 0: the frame shown takes the warp's luma detail where the
     warp landed and agrees with it to within about T 8-bit levels.
-    `shown_in_holes`: `shown`'s head makes the frame shown in the warp's
-    holes only, `kept`'s where the warp landed."""
+    `holes`: a model folder whose head's luma detail the frame shown takes
+    in the warp's holes."""
     for flag, k in (("--hole-fill", hole_fill), ("--hole-detail", hole_detail)):
         if k and (k < 3 or k % 2 == 0):
             raise SystemExit(f"{flag}: an odd window of at least 3 pixels, or 0 for none; got {k}")
@@ -453,10 +476,9 @@ def pair(kept: Path, shown: Path, out: Path, data: Path | None = None, hole_fill
         shutil.copytree(kept, staged)
         same = architecture(shown_head) == architecture(kept_head) and all(
             torch.equal(a, b) for a, b in zip(shown_head.state_dict().values(), kept_head.state_dict().values()))
-        if same and shown_in_holes:
-            raise SystemExit("--shown-in-holes: --shown has the same head as --kept; it would change nothing")
+        holes_head, holes_spec = head_of(holes, "holes") if holes is not None else (None, None)
         heads = HeadPair(kept_head if same else shown_head, kept_head, hole_fill, hole_detail, warp_detail,
-                         shown_in_holes).eval()
+                         holes_head).eval()
         args = reference_images(data, h, w)
         outputs = ("image", "kept")
         onnx.save(to_onnx(heads, args, list(INPUTS), list(outputs)), staged / kept_spec["file"])
@@ -468,20 +490,22 @@ def pair(kept: Path, shown: Path, out: Path, data: Path | None = None, hole_fill
         spec["outputs"] = [kept_spec["outputs"][0], dict(kept_spec["outputs"][0], name="kept",
                                                          meaning="the frame the memory keeps (re-encoded as later frames' context), RGB")]
         spec["architecture"] = (f"one head for both frames: {kept_spec['architecture']}" if same else
-                                f"two heads on the same inputs, one for the frame shown" + (" in the warp's holes (where it landed, the frame kept's)"
-                                                                        if shown_in_holes else "") +
-            f" and one for the frame kept; each: {kept_spec['architecture']}") + (
+                                f"two heads on the same inputs, one for the frame shown and one for the frame kept; each: {kept_spec['architecture']}") + (
             f"; the kept frame's {hole_fill}x{hole_fill} local mean in the warp's holes replaced by the warp's colours diffused into them"
             if hole_fill else "") + (
             f"; the frame shown takes the decoded frame's detail (beyond its {hole_detail}x{hole_detail} local mean) in the warp's holes"
             if hole_detail else "") + (
             f"; where the warp landed, the frame shown takes the warp's luma detail (beyond its 3x3 local mean) in the measure "
-            f"that their 5x5 local means agree (a half at {warp_detail:g} 8-bit levels apart)" if warp_detail else "")
-        spec["parameters"] = kept_spec["parameters"] + (0 if same else shown_spec["parameters"])
+            f"that their 5x5 local means agree (a half at {warp_detail:g} 8-bit levels apart)" if warp_detail else "") + (
+            f"; in the warp's holes the frame shown takes the luma detail (beyond its 3x3 local mean) of a third head "
+            f"on the same inputs ({holes_spec['architecture']})" if holes is not None else "")
+        spec["parameters"] = kept_spec["parameters"] + (0 if same else shown_spec["parameters"]) + (
+            holes_spec["parameters"] if holes is not None else 0)
         spec["pair"] = {"shown": {"model": shown_spec.get("model", shown.name), "trained": shown_spec.get("trained")},
                         "kept": {"model": kept_spec.get("model", kept.name), "trained": kept_spec.get("trained")},
-                        "hole_fill": hole_fill, "hole_detail": hole_detail, "warp_detail": warp_detail,
-                        "shown_where": "holes" if shown_in_holes else "everywhere"}
+                        "hole_fill": hole_fill, "hole_detail": hole_detail, "warp_detail": warp_detail}
+        if holes is not None:
+            spec["pair"]["holes"] = {"model": holes_spec.get("model", holes.name), "trained": holes_spec.get("trained")}
         manifest["name"] = out.name
         manifest["fusion"] = spec
         (staged / "manifest.json").write_text(json.dumps(manifest, indent=1))
