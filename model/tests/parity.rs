@@ -389,9 +389,10 @@ fn the_fusion_head_matches_pytorch() {
 }
 
 /// The served student's head pair (python -m worldpack_model fusion-pair)
-/// against PyTorch: its first output, the frame shown, is exactly the head of
-/// the model named `pair.shown`; its second, the frame the memory keeps, is
-/// another. A second output of any other name is refused by name.
+/// against PyTorch: its first output, the frame shown, is the head of the
+/// model named `pair.shown`, exactly where no warp landed and with the warp's
+/// detail where it did (`pair.warp_detail`); its second, the frame the memory
+/// keeps, is another. A second output of any other name is refused by name.
 #[test]
 fn a_head_pair_shows_one_head_and_keeps_the_other() {
     let dir = fixture_named("variants/worldpack_geometry_fused_1step");
@@ -408,8 +409,19 @@ fn a_head_pair_shows_one_head_and_keeps_the_other() {
     }
     let apart = |a: &Tensor, b: &Tensor| a.data.iter().zip(&b.data).map(|(x, y)| (x - y).abs()).fold(0.0f32, f32::max);
     let alone = shown.run(model::GraphRole::Fusion, &inputs).unwrap().remove(0);
-    assert!(apart(&outputs[0], &alone) < 1e-5, "the frame shown is {} from the shown model's head", apart(&outputs[0], &alone));
     assert!(apart(&outputs[1], &outputs[0]) > 0.01, "the frame kept is the frame shown");
+    assert!(manifest["fusion"]["pair"]["warp_detail"].as_f64() > Some(0.0), "the served pair takes the warp's detail");
+    assert!(apart(&outputs[0], &alone) > 0.01, "where the warp landed the frame shown has none of the warp's detail");
+    // Where nothing landed, the warp's detail rule has nothing to give: the frame shown is the shown head's.
+    let mut nothing_landed = store.clone();
+    for (name, tensor) in &mut nothing_landed {
+        if name == "landed" {
+            tensor.data.iter_mut().for_each(|v| *v = 0.0);
+        }
+    }
+    let inputs: Vec<(&str, &Tensor)> = nothing_landed.iter().map(|(n, t)| (n.as_str(), t)).collect();
+    let (shown_frame, alone) = (m.run(model::GraphRole::Fusion, &inputs).unwrap().remove(0), shown.run(model::GraphRole::Fusion, &inputs).unwrap().remove(0));
+    assert!(apart(&shown_frame, &alone) < 1e-5, "with nothing landed the frame shown is {} from the shown model's head", apart(&shown_frame, &alone));
 
     let copy = copy_files_of(&dir, "pair-name");
     let mut wrong = manifest.clone();
