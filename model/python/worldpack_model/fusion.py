@@ -258,6 +258,10 @@ def train(data: list[Path], run: Path, steps: int, batch: int, lr: float, minute
 
     `init_from` (a run folder) starts a new run from that run's head, with a
     fresh optimiser: a pix2pix head fine-tuned from a regression one."""
+    if not 0 <= landed_weight <= 1:
+        raise SystemExit(f"--landed-weight: a weight in [0, 1]; got {landed_weight}")
+    if not texture_weight >= 0:
+        raise SystemExit(f"--texture-weight: a weight of at least 0 (0: off); got {texture_weight}")
     run.mkdir(parents=True, exist_ok=True)
     folders = [load_examples(d) for d in data]
     fit = [[x[: len(x) - max(1, len(x) // 10)] for x in f] for f in folders]
@@ -377,7 +381,7 @@ def loss_name(cfg: dict) -> str:
         if cfg.get("edge_landed", 1) != 1:
             name += f", weighted {cfg['edge_landed']} where the warp landed"
     if cfg.get("landed_weight", 1) != 1:
-        name += f", weighted {cfg['landed_weight']} where the warp landed"
+        name += f" (these weighted {cfg['landed_weight']} where the warp landed)"
     if cfg.get("texture_weight"):
         name += f" + {cfg['texture_weight']} x patch detail energy in the warp's holes (after EnhanceNet's texture loss)"
     if cfg.get("adversarial_weight"):
