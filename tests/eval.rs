@@ -157,7 +157,6 @@ fn reduced_rollout_suite_runs_resumes_and_scores_every_frame() {
         assert!(text.contains("| **WorldPack** |") && text.contains("curves-abca.png"), "{text}");
         assert!(out.join("report/results/curves-aba.png").exists());
     }
-
     let _ = std::fs::remove_dir_all(&suite);
     let _ = std::fs::remove_dir_all(&out);
 }

@@ -145,13 +145,21 @@ def detail_in_holes(frame, predicted, landed, k):
     return frame + ((predicted - box_mean(predicted, k)) - (frame - box_mean(frame, k))) * (1 - landed)
 
 
+def luma(x):
+    """Rec. 601 luma of NCHW RGB `x`, (N, 1, H, W), as fusion.py's."""
+    return (x * np.array([0.299, 0.587, 0.114], np.float32).reshape(1, 3, 1, 1)).sum(1, keepdims=True)
+
+
+def luma_detail(x):
+    """What the 3x3 local mean leaves of `x`'s luma: the detail fusion.py's rules move."""
+    return luma(x) - box_mean(luma(x), 3)
+
+
 def warp_detail_where_agreed(frame, reference, landed, tolerance):
     """fusion.warp_detail_where_agreed, written again without torch."""
     distance2 = ((box_mean(reference, 5) - box_mean(frame, 5)) ** 2).sum(1, keepdims=True) * 127.5**2
     agree = np.exp(-np.log(2) * distance2 / tolerance**2)
-    luma = lambda x: (x * np.array([0.299, 0.587, 0.114], np.float32).reshape(1, 3, 1, 1)).sum(1, keepdims=True)
-    detail = lambda x: luma(x) - box_mean(luma(x), 3)
-    return frame + (detail(reference) - detail(frame)) * agree * landed
+    return frame + (luma_detail(reference) - luma_detail(frame)) * agree * landed
 
 
 def hole_case(model, rule, landed_rows):
@@ -183,8 +191,8 @@ def test_a_hole_head_paints_detail_where_the_warp_has_none(model):
     images["landed"] = images["landed"].copy()
     images["landed"][:, :, 40:] = 0
     image, kept = session(spec["file"], model).run(None, images)
-    luma = lambda x: (x * np.array([0.299, 0.587, 0.114], np.float32).reshape(1, 3, 1, 1)).sum(1)[:, 42:, :]
-    energy = lambda x: float((np.diff(luma(x), axis=2) ** 2).mean() + (np.diff(luma(x), axis=1) ** 2).mean())
+    hole = lambda x: luma(x)[:, 0, 42:, :]
+    energy = lambda x: float((np.diff(hole(x), axis=2) ** 2).mean() + (np.diff(hole(x), axis=1) ** 2).mean())
     assert energy(image) > 2.5 * energy(kept), \
         f"{model.name}: in the hole the frame shown has {energy(image) / energy(kept):.2f} times the frame kept's edge energy"
 
@@ -238,10 +246,8 @@ def test_a_head_pairs_warp_detail_brings_the_warps_detail_on_real_frames(model):
         alone = session(json.loads((shown_dir / "manifest.json").read_text())["fusion"]["file"], shown_dir).run(None, images)[0]
     if spec["pair"].get("hole_detail"):
         alone = detail_in_holes(alone, images["predicted"], images["landed"], spec["pair"]["hole_detail"])
-    luma = lambda x: (x * np.array([0.299, 0.587, 0.114], np.float32).reshape(1, 3, 1, 1)).sum(1, keepdims=True)
-    detail = lambda x: luma(x) - box_mean(luma(x), 3)
     landed = images["landed"] > 0.5
-    gap = lambda x: float(np.abs(detail(x) - detail(images["reference"]))[landed].mean())
+    gap = lambda x: float(np.abs(luma_detail(x) - luma_detail(images["reference"]))[landed].mean())
     assert gap(image) < 0.9 * gap(alone), \
         f"{model.name}: where the warp landed the frame shown's detail is {gap(image):.4f} from the warp's, without the rule {gap(alone):.4f}"
     if not spec["pair"].get("holes"):  # a hole head moves those pixels on purpose

@@ -145,9 +145,15 @@ def luma_detail_in_holes(frame, painted, landed):
     truth's where no stored frame has the pixels; its colours there are
     less sure than its edges (a luma-only detail term leaves them free), so
     only its luma detail is taken, as the warp's is where it agrees."""
-    luma = lambda x: (x * LUMA.to(x.dtype)).sum(1, keepdim=True)
-    detail = lambda x: luma(x) - local_mean(luma(x), 3)
-    return frame + (detail(painted) - detail(frame)) * (1 - landed)
+    return frame + (luma_detail(painted) - luma_detail(frame)) * (1 - landed)
+
+
+def luma_detail(x):
+    """What the 3x3 local mean leaves of NCHW `x`'s luma, (N, 1, H, W): the
+    detail the rules move between frames. Luma only: the eye, and the
+    sharpness ratio, see edges in luma."""
+    luma = (x * LUMA.to(x.dtype)).sum(1, keepdim=True)
+    return luma - local_mean(luma, 3)
 
 
 def warp_detail_where_agreed(frame, reference, landed, tolerance: float):
@@ -164,9 +170,7 @@ def warp_detail_where_agreed(frame, reference, landed, tolerance: float):
     colours stay the head's, which costs less where the warp is off."""
     distance2 = (local_mean(reference, 5) - local_mean(frame, 5)).pow(2).sum(1, keepdim=True) * 127.5**2
     agree = torch.exp(-math.log(2) * distance2 / tolerance**2)
-    luma = lambda x: (x * LUMA.to(x.dtype)).sum(1, keepdim=True)
-    detail = lambda x: luma(x) - local_mean(luma(x), 3)
-    return frame + (detail(reference) - detail(frame)) * agree * landed
+    return frame + (luma_detail(reference) - luma_detail(frame)) * agree * landed
 
 
 def head_of(model: Path, part: str = "kept") -> tuple[FusionHead, dict]:
