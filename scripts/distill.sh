@@ -23,7 +23,7 @@
 #                                  # discriminator's learning rate (default LR)
 #   ./scripts/distill.sh adversarial-export  # -> OUT (RUN/model), with DECODER's decoder and HEADS's fusion heads (a model folder);
 #                                  # VAL (data/val): the suite its manifest's metrics are measured on
-# RUN (runs/distill/<N>step; runs/distill/adversarial for those two) holds the run; PY runs `python -m worldpack_model`
+# RUN (runs/distill/<N>step; runs/distill/adversarial for those two) holds the run; PY runs `python -m worldpack_train`
 # (default ./scripts/model.sh, which sets up .venv-train).
 set -euo pipefail
 cd "$(dirname "$0")/.."

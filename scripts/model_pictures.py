@@ -18,9 +18,9 @@ import onnxruntime as ort
 
 ROOT = pathlib.Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "model" / "python"))
-from worldpack_model import data as wdata  # noqa: E402  (torch-free)
-from worldpack_model.config import LAYOUTS, DiffusionConfig  # noqa: E402
-from worldpack_model.diffusion import Schedule, sample  # noqa: E402
+from worldpack_train import data as wdata  # noqa: E402  (torch-free)
+from worldpack_train.config import LAYOUTS, DiffusionConfig  # noqa: E402
+from worldpack_train.diffusion import Schedule, sample  # noqa: E402
 
 
 def main():

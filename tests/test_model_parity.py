@@ -16,9 +16,9 @@ import pytest
 ROOT = pathlib.Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "model" / "python"))
 
-from worldpack_model import manifest as wm  # noqa: E402  (torch-free modules only)
-from worldpack_model.config import DiffusionConfig  # noqa: E402
-from worldpack_model.diffusion import Sampler, Schedule, sample  # noqa: E402
+from worldpack_train import manifest as wm  # noqa: E402  (torch-free modules only)
+from worldpack_train.config import DiffusionConfig  # noqa: E402
+from worldpack_train.diffusion import Sampler, Schedule, sample  # noqa: E402
 
 MODEL = ROOT / "fixtures" / "small"
 MANIFEST = json.loads((MODEL / "manifest.json").read_text())

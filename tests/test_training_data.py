@@ -14,8 +14,8 @@ import pytest
 ROOT = Path(__file__).resolve().parent.parent
 BIN = os.environ.get("WORLDPACK_BIN", str(ROOT / "target" / "release" / "worldpack"))
 sys.path.insert(0, str(ROOT / "model" / "python"))
-from worldpack_model import data as wdata  # noqa: E402
-from worldpack_model.config import LAYOUTS  # noqa: E402
+from worldpack_train import data as wdata  # noqa: E402
+from worldpack_train.config import LAYOUTS  # noqa: E402
 
 POLICY = "worldpack_keep_last"
 

@@ -221,7 +221,7 @@ pub struct DiffusionSpec {
     pub distilled: Option<DistilledSpec>,
 }
 
-/// A distilled student's sampler (`python -m worldpack_model distill`).
+/// A distilled student's sampler (`python -m worldpack_train distill`).
 #[derive(Clone, Debug, Deserialize)]
 pub struct DistilledSpec {
     /// Original timestep indices, descending; the last step lands on the clean frame.
@@ -237,7 +237,7 @@ impl Manifest {
             return Err(folder_error("no such model folder (expected ONNX graphs and manifest.json, e.g. fixtures/small)".into()));
         }
         let text = std::fs::read_to_string(&path)
-            .map_err(|e| folder_error(format!("cannot read manifest.json ({e}); is this a folder written by `python -m worldpack_model export`?")))?;
+            .map_err(|e| folder_error(format!("cannot read manifest.json ({e}); is this a folder written by `python -m worldpack_train export`?")))?;
         let manifest: Manifest = serde_json::from_str(&text).map_err(|e| ModelError::manifest("manifest.json", e.to_string()))?;
         manifest.validate()?;
         Ok(manifest)

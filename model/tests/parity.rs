@@ -388,7 +388,7 @@ fn the_fusion_head_matches_pytorch() {
     let _ = std::fs::remove_dir_all(&copy);
 }
 
-/// The served student's head pair (python -m worldpack_model fusion-pair)
+/// The served student's head pair (python -m worldpack_train fusion-pair)
 /// against PyTorch: its first output, the frame shown, is the head of the
 /// model named `pair.shown`, exactly where no warp landed and with the warp's
 /// detail where it did (`pair.warp_detail`); its second, the frame the memory
@@ -432,7 +432,7 @@ fn a_head_pair_shows_one_head_and_keeps_the_other() {
     let _ = std::fs::remove_dir_all(&copy);
 }
 
-/// The distilled students (python -m worldpack_model distill): their graphs
+/// The distilled students (python -m worldpack_train distill): their graphs
 /// (v-prediction turned into epsilon inside) match PyTorch, the sampler runs
 /// each one's own grid by DDIM whatever steps and method are asked, and the
 /// free-running Rust sample follows PyTorch's trace.

@@ -39,7 +39,7 @@ paper=/tmp/paper
 paper_weights() {
     "$bin" sim loopnav --per-cell 1 --tasks aba --ranges 5 --seed 9 --size 224x224 --out "$paper/data" \
         && "$bin" plan --data "$paper/data" --policies baseline,worldpack \
-        && PYTHONPATH=model/python timeout 300 "$py" -m worldpack_model paper-scale --size paper --data "$paper/data" --out "$paper/model"
+        && PYTHONPATH=train timeout 300 "$py" -m worldpack_train paper-scale --size paper --data "$paper/data" --out "$paper/model"
 }
 if [ "$1" = prepare ]; then
     mkdir -p "$paper" && paper_weights > "$paper/prepare.log" 2>&1

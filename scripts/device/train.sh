@@ -23,7 +23,7 @@ configs="${CONFIGS:-w05:2:0.05 w15:2:0.15 w40:2:0.4}"
 work="${WORK:-/tmp/worldpack-train}"
 t0=$(date +%s)
 elapsed() { echo "$(( $(date +%s) - t0 )) s"; }
-mkdir -p "$work" && export PYTHONPATH="$PWD/model/python"
+mkdir -p "$work" && export PYTHONPATH="$PWD/train"
 zstd -d -q -c .device/train/decoder.tar.zst | tar -xf - -C "$work"
 data="$work/data"
 stash="${STASH:-/root/worldpack-pieces}"
@@ -47,7 +47,7 @@ for c in $configs; do
     mkdir -p "$run" && cp .device/train/{config.json,autoencoder.pt,cdit-worldpack.pt,distilled-worldpack-1.pt} "$run/"
     if [ -z "$first" ]; then
         first="$run"
-        "$py" -m worldpack_model encode --data "$data" --run "$run" --device "$device" > "$OUT/encode.log" 2>&1 || { tail "$OUT/encode.log"; exit 1; }
+        "$py" -m worldpack_train encode --data "$data" --run "$run" --device "$device" > "$OUT/encode.log" 2>&1 || { tail "$OUT/encode.log"; exit 1; }
         echo "encoded: $(elapsed)"
     else
         ln -sfn "$first/latents" "$run/latents"
@@ -56,7 +56,7 @@ done
 for c in $configs; do
     IFS=: read -r name weight cap <<< "$c"
     RUN="$work/runs/$name" TRAIN="$data" DECODER="$work/decoder" ADV="$weight" ADV_CAP="$cap" \
-        BATCH="$batch" STEPS=1000000 MINUTES="$minutes" DEVICE="$device" THREADS=4 PY="$py -m worldpack_model" \
+        BATCH="$batch" STEPS=1000000 MINUTES="$minutes" DEVICE="$device" THREADS=4 PY="$py -m worldpack_train" \
         ./scripts/distill.sh adversarial > "$work/$name.log" 2>&1 &
 done
 wait

@@ -260,7 +260,7 @@ def keep_fusion_head(source: Path, out: Path) -> None:
 
 
 def write_model(cfg: ModelConfig, ae, model: CDiT, layout_names: list[str], data: Path, out: Path, half: bool,
-                training: dict | None, generated_level: float = 0.0, metrics: bool = True, created_by: str = "python -m worldpack_model export",
+                training: dict | None, generated_level: float = 0.0, metrics: bool = True, created_by: str = "python -m worldpack_train export",
                 tolerance: dict | None = None, distilled: dict | None = None) -> None:
     """Graphs, references (inputs from `data`'s first trajectories) and the
     manifest of one model. `training` None: untrained weights (no training

@@ -63,5 +63,5 @@ def main(size: str, data: Path, out: Path, seed: int, half: bool) -> None:
     # (ONNX Runtime's) then differ from PyTorch's by up to 4e-5, so the absolute
     # tolerance is 1e-4 here (1e-5 for the trained models).
     write_model(cfg, ae, model, ["worldpack", "baseline"], data, out, half, training=None, metrics=False,
-                created_by=f"python -m worldpack_model paper-scale --size {size} --seed {seed} (random weights)",
+                created_by=f"python -m worldpack_train paper-scale --size {size} --seed {seed} (random weights)",
                 tolerance={"abs": 1e-4, "rel": 1e-4})

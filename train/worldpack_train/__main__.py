@@ -1,4 +1,4 @@
-"""`python -m worldpack_model <stage>`: train-ae, encode, train, variants, distill, export, paper-scale, recover,
+"""`python -m worldpack_train <stage>`: train-ae, encode, train, variants, distill, export, paper-scale, recover,
 fusion-train, fusion-export, fusion-pair, sharpen-decoder, swap-decoder.
 See docs/model.md for the whole recipe."""
 
@@ -11,7 +11,7 @@ from .config import LAYOUTS
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(prog="worldpack_model", description=__doc__)
+    ap = argparse.ArgumentParser(prog="worldpack_train", description=__doc__)
     sub = ap.add_subparsers(dest="stage", required=True)
 
     def recipe_options(p):
