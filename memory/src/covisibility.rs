@@ -27,7 +27,7 @@ use glam::{DVec2, DVec3};
 use serde::Serialize;
 
 use crate::error::InputError;
-use crate::index::FrameMemory;
+use crate::index::Stack;
 pub use crate::policy::CoVisibility;
 use crate::policy::{ContextPlan, Packing, Policy, PolicyKind, Ranking, SelectedFrame, age, rank_order};
 use crate::{Estimator, Frustum, Intrinsics, Pose};
@@ -151,18 +151,19 @@ pub struct CoVisibilityStats {
 
 /// Re-ranks by co-visibility (module docs): `policy` gives the packing and
 /// the score weights; `depth_of` the coarse depth of a stored frame, if any.
-/// [`FrameMemory::plan`] calls it for a policy with `covisibility` set.
+/// [`Stack::plan`] calls it for a policy with `covisibility` set.
 /// Without any candidate depth this is `policy`'s own frustum-score ranking.
 /// `previous` (the last plan for a nearby target) only speeds the first stage up.
 /// The policy's `keep_last` pin is not applied: every slot is ranked by score.
-pub fn rerank<'a>(
-    memory: &FrameMemory,
+pub fn rerank<'a, 'm>(
+    memory: impl Into<Stack<'m>>,
     policy: &Policy,
     target: &Frustum,
     settings: &CoVisibility,
     previous: Option<&ContextPlan>,
     depth_of: impl Fn(u64) -> Option<&'a DepthGrid>,
 ) -> Result<(ContextPlan, CoVisibilityStats), InputError> {
+    let memory: Stack<'m> = memory.into();
     let settings = settings.validated()?;
     // Stage 1 scores like the policy, against its own query view (for
     // WorldPack the newest frame, one step from the target), so the index
@@ -214,7 +215,7 @@ mod tests {
     use glam::DMat3;
 
     use super::*;
-    use crate::MemoryFrame;
+    use crate::{FrameMemory, MemoryFrame};
 
     /// Axis-aligned boxes as (min, max) corners.
     type Scene = [(DVec3, DVec3)];

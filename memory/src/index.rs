@@ -253,20 +253,106 @@ impl FrameMemory {
     /// The plan for `target`, exactly as brute force would choose it.
     /// `previous` (the last plan for a nearby target) only speeds things up.
     pub fn select(&self, policy: &Policy, target: &Frustum, previous: Option<&ContextPlan>) -> (ContextPlan, SelectionStats) {
+        Stack::of(self).select(policy, target, previous)
+    }
+
+    /// The newest frame's slot, by `(time, id)`.
+    fn newest_slot(&self) -> Option<usize> {
+        self.by_recency.last().copied()
+    }
+}
+
+/// Frame memories read as one: layers whose frames together are the memory,
+/// such as a fork's shared, frozen history and the frames written since.
+/// Ids must be unique across the layers. Selection visits every layer
+/// through its own R-tree and bounds with one shared top-`n`, so a stack
+/// selects exactly what one `FrameMemory` of all its frames would (tested).
+#[derive(Clone, Default)]
+pub struct Stack<'a> {
+    layers: Vec<&'a FrameMemory>,
+}
+
+impl<'a> From<&'a FrameMemory> for Stack<'a> {
+    fn from(memory: &'a FrameMemory) -> Self {
+        Stack::of(memory)
+    }
+}
+
+impl<'a> From<&Stack<'a>> for Stack<'a> {
+    fn from(stack: &Stack<'a>) -> Self {
+        stack.clone()
+    }
+}
+
+impl<'a> Stack<'a> {
+    pub fn new(layers: Vec<&'a FrameMemory>) -> Self {
+        Stack { layers }
+    }
+
+    pub fn of(memory: &'a FrameMemory) -> Self {
+        Stack { layers: vec![memory] }
+    }
+
+    /// Adds a layer on top.
+    pub fn push(&mut self, memory: &'a FrameMemory) {
+        self.layers.push(memory);
+    }
+
+    pub fn len(&self) -> usize {
+        self.layers.iter().map(|m| m.len()).sum()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.layers.iter().all(|m| m.is_empty())
+    }
+
+    pub fn get(&self, id: u64) -> Option<&'a MemoryFrame> {
+        self.layers.iter().find_map(|m| m.get(id))
+    }
+
+    /// Every frame, layer by layer, each in insertion order.
+    pub fn frames(&self) -> impl Iterator<Item = &'a MemoryFrame> + '_ {
+        self.layers.iter().flat_map(|m| m.frames.iter())
+    }
+
+    /// All frames, the most recent first (by time, then id), merged across layers.
+    pub fn newest_first(&self) -> impl Iterator<Item = &'a MemoryFrame> + '_ {
+        let mut heads: Vec<_> = self.layers.iter().map(|m| m.newest_first().peekable()).collect();
+        std::iter::from_fn(move || {
+            let (best, _) = heads.iter_mut().enumerate().filter_map(|(i, h)| h.peek().map(|f| (i, (f.time, f.id)))).max_by_key(|&(_, key)| key)?;
+            heads[best].next()
+        })
+    }
+
+    /// The newest frame's (layer, slot).
+    fn newest(&self) -> Option<(usize, usize)> {
+        self.layers
+            .iter()
+            .enumerate()
+            .filter_map(|(l, m)| m.newest_slot().map(|s| (l, s)))
+            .max_by_key(|&(l, s)| (self.layers[l].frames[s].time, self.layers[l].frames[s].id))
+    }
+
+    fn frame(&self, (layer, slot): (usize, usize)) -> &'a MemoryFrame {
+        &self.layers[layer].frames[slot]
+    }
+
+    /// The plan for `target`, exactly as brute force over every layer's frames would choose it.
+    pub fn select(&self, policy: &Policy, target: &Frustum, previous: Option<&ContextPlan>) -> (ContextPlan, SelectionStats) {
         let n = policy.packing.slots();
-        let newest = self.by_recency.last().map(|&s| &self.frames[s].frustum);
+        let newest = self.newest().map(|at| &self.frame(at).frustum);
         let target = policy.query_view(target, newest);
         match policy.ranking {
             Ranking::Score => self.select_by_score(policy, target, previous),
             Ranking::Recency => {
                 // The newest n frames are all that recency can pick.
-                let newest: Vec<&MemoryFrame> = self.by_recency.iter().rev().take(n).map(|&s| &self.frames[s]).collect();
+                let newest: Vec<&MemoryFrame> = self.newest_first().take(n).collect();
                 let stats = SelectionStats { overlap_evaluations: newest.len(), ..SelectionStats::default() };
                 (select_by_brute_force_among(policy, target, &newest), stats)
             }
             Ranking::GreedyCoverage => {
                 // Coverage changes every round; scored by brute force.
-                let all: Vec<&MemoryFrame> = self.frames.iter().collect();
+                let all: Vec<&MemoryFrame> = self.frames().collect();
                 let stats =
                     SelectionStats { box_candidates: all.len(), overlap_evaluations: all.len() * n, ..SelectionStats::default() };
                 (select_by_brute_force_among(policy, target, &all), stats)
@@ -276,10 +362,10 @@ impl FrameMemory {
 
     fn select_by_score(&self, policy: &Policy, target: &Frustum, previous: Option<&ContextPlan>) -> (ContextPlan, SelectionStats) {
         let mut stats = SelectionStats::default();
-        let Some(&newest) = self.by_recency.last() else {
+        let Some(newest) = self.newest() else {
             return (ContextPlan::from_ranked(&policy.packing, &[]), stats);
         };
-        let t_now = self.frames[newest].time;
+        let t_now = self.frame(newest).time;
         let pinned = policy.keep_last.then_some(newest);
         let n = policy.packing.slots() - pinned.is_some() as usize;
         let samples = policy.estimator.samples(target);
@@ -287,38 +373,38 @@ impl FrameMemory {
             Some(s) => s.overlap(&f.frustum),
             None => crate::overlap::exact_overlap(target, &f.frustum),
         };
-        let describe = |slot: usize, overlap: f64| {
-            let f = &self.frames[slot];
+        let describe = |at: (usize, usize), overlap: f64| {
+            let f = self.frame(at);
             SelectedFrame { id: f.id, time: f.time, overlap, score: policy.weights.score(overlap, age(f.time, t_now)) }
         };
 
         // WorldMem's angular test has no range: a box cannot rule a frame out.
         let ranged = !matches!(policy.estimator, Estimator::WorldMem(_));
         let meets_box = |aabb: &Aabb| !ranged || aabb.intersects(target.aabb());
-        let meets = |slot: usize| meets_box(self.frames[slot].frustum.aabb());
+        let meets = |at: (usize, usize)| meets_box(self.frame(at).frustum.aabb());
         // Group bounds hold for the exact overlap only (an estimate may
         // exceed them), and only rank correctly while the score grows with it.
         let use_bounds = matches!(policy.estimator, Estimator::Exact) && policy.weights.overlap > 0.0;
         let mut best = TopN::new(n);
         if n > 0 {
             // Warm start: last plan's frames that can still overlap.
-            let mut warm: Vec<usize> = Vec::new();
+            let mut warm: Vec<(usize, usize)> = Vec::new();
             for id in previous.iter().flat_map(|p| p.selected().map(|(_, f)| f.id)) {
-                if let Some(&slot) = self.slot_of.get(&id)
-                    && Some(slot) != pinned
-                    && meets(slot)
-                    && !warm.contains(&slot)
-                {
-                    warm.push(slot);
+                let Some(at) = self.layers.iter().enumerate().find_map(|(l, m)| m.slot_of.get(&id).map(|&s| (l, s))) else { continue };
+                if Some(at) != pinned && meets(at) && !warm.contains(&at) {
+                    warm.push(at);
                     stats.overlap_evaluations += 1;
-                    best.push(describe(slot, overlap_of(&self.frames[slot])));
+                    best.push(describe(at, overlap_of(self.frame(at))));
                 }
             }
-            let groups: Vec<usize> = if ranged {
-                self.tree.locate_in_envelope_intersecting(envelope(target.aabb())).map(|b| b.group).collect()
-            } else {
-                (0..self.groups.len()).collect()
-            };
+            let mut groups: Vec<(usize, usize)> = Vec::new();
+            for (l, m) in self.layers.iter().enumerate() {
+                if ranged {
+                    groups.extend(m.tree.locate_in_envelope_intersecting(envelope(target.aabb())).map(|b| (l, b.group)));
+                } else {
+                    groups.extend((0..m.groups.len()).map(|g| (l, g)));
+                }
+            }
             // Best first: a queue of each group's next step keyed by the best
             // score any of its remaining members could reach. A group enters
             // with its coarse group's bound; its own hull is clipped only when
@@ -326,13 +412,14 @@ impl FrameMemory {
             // past it and that clip is never spent.
             let upper = |bound: f64, time: u64| policy.weights.score(bound, age(time, t_now));
             let mut queue: BinaryHeap<Next> = BinaryHeap::with_capacity(groups.len());
-            let mut coarse_bounds = vec![f64::NAN; self.coarse.len()];
-            for g in groups {
-                let group = &self.groups[g];
+            let mut coarse_bounds: Vec<Vec<f64>> = self.layers.iter().map(|m| vec![f64::NAN; m.coarse.len()]).collect();
+            for (layer, g) in groups {
+                let memory = self.layers[layer];
+                let group = &memory.groups[g];
                 stats.box_candidates += group.members.len();
                 let newest = Stage::Member(group.members.len() - 1);
                 if !use_bounds {
-                    queue.push(Next { upper: upper(1.0, group.newest_time), bound: 1.0, group: g, stage: newest });
+                    queue.push(Next { upper: upper(1.0, group.newest_time), bound: 1.0, layer, group: g, stage: newest });
                     continue;
                 }
                 if best.cannot_admit(upper(1.0, group.newest_time)) {
@@ -341,23 +428,23 @@ impl FrameMemory {
                 // Coarse bounds are few and shared by groups of every age, so
                 // they are taken at once, clipped only as far as the newest
                 // frame needs.
-                let coarse = &mut coarse_bounds[group.coarse];
+                let coarse = &mut coarse_bounds[layer][group.coarse];
                 if coarse.is_nan() {
                     stats.group_bounds += 1;
-                    *coarse = self.coarse[group.coarse].overlap_bound(target, best.overlap_to_enter(&policy.weights, 0.0));
+                    *coarse = memory.coarse[group.coarse].overlap_bound(target, best.overlap_to_enter(&policy.weights, 0.0));
                 }
                 let bound = *coarse;
                 if best.cannot_admit(upper(bound, group.newest_time)) {
                     continue;
                 }
                 let stage = if group.members.len() >= MIN_GROUP_FOR_BOUND { Stage::Group } else { newest };
-                queue.push(Next { upper: upper(bound, group.newest_time), bound, group: g, stage });
+                queue.push(Next { upper: upper(bound, group.newest_time), bound, layer, group: g, stage });
             }
             while let Some(next) = queue.pop() {
                 if best.cannot_admit(next.upper) {
                     break; // everything still queued has a lower bound
                 }
-                let group = &self.groups[next.group];
+                let group = &self.layers[next.layer].groups[next.group];
                 let index = match next.stage {
                     Stage::Group => {
                         stats.group_bounds += 1;
@@ -375,19 +462,19 @@ impl FrameMemory {
                 let mut index = index;
                 loop {
                     let member = &members[index];
-                    let slot = member.slot;
-                    if Some(slot) != pinned && meets_box(&member.aabb) && !warm.contains(&slot) {
+                    let at = (next.layer, member.slot);
+                    if Some(at) != pinned && meets_box(&member.aabb) && !warm.contains(&at) {
                         stats.overlap_evaluations += 1;
                         if use_bounds {
                             // The clip stops once it proves this frame cannot enter.
                             let floor = best.overlap_to_enter(&policy.weights, age(member.time, t_now));
                             // Its box meets the target's (checked above): the planes beside it are all the clip needs.
                             match crate::overlap::overlap_within_unless_below(target, &member.planes, member.scale, floor) {
-                                Some(o) => best.push(describe(slot, o)),
+                                Some(o) => best.push(describe(at, o)),
                                 None => stats.cut_short += 1,
                             }
                         } else {
-                            best.push(describe(slot, overlap_of(&self.frames[slot])));
+                            best.push(describe(at, overlap_of(self.frame(at))));
                         }
                     }
                     if index == 0 {
@@ -404,22 +491,25 @@ impl FrameMemory {
                     }
                 }
             }
-            // Zero-overlap frames: scores need no geometry, newest is best.
-            for &slot in self.by_recency.iter().rev() {
-                if Some(slot) == pinned || meets(slot) {
-                    continue;
+            // Zero-overlap frames: scores need no geometry, newest is best (layer by layer).
+            for (l, m) in self.layers.iter().enumerate() {
+                for &slot in m.by_recency.iter().rev() {
+                    let at = (l, slot);
+                    if Some(at) == pinned || meets(at) {
+                        continue;
+                    }
+                    let entry = describe(at, 0.0);
+                    if best.cannot_admit(entry.score) {
+                        break;
+                    }
+                    best.push(entry);
                 }
-                let entry = describe(slot, 0.0);
-                if best.cannot_admit(entry.score) {
-                    break;
-                }
-                best.push(entry);
             }
         }
         let mut ranked = best.into_sorted();
-        if let Some(slot) = pinned {
+        if let Some(at) = pinned {
             stats.overlap_evaluations += 1;
-            ranked.insert(0, describe(slot, overlap_of(&self.frames[slot])));
+            ranked.insert(0, describe(at, overlap_of(self.frame(at))));
         }
         (ContextPlan::from_ranked(&policy.packing, &ranked), stats)
     }
@@ -431,6 +521,8 @@ struct Next {
     upper: f64,
     /// The tightest bound on the group's overlaps found so far.
     bound: f64,
+    /// The stack layer the group belongs to.
+    layer: usize,
     group: usize,
     stage: Stage,
 }
@@ -456,7 +548,7 @@ impl PartialOrd for Next {
 }
 impl Ord for Next {
     fn cmp(&self, other: &Self) -> std::cmp::Ordering {
-        self.upper.total_cmp(&other.upper).then(other.group.cmp(&self.group))
+        self.upper.total_cmp(&other.upper).then(other.layer.cmp(&self.layer)).then(other.group.cmp(&self.group))
     }
 }
 

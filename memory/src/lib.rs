@@ -14,7 +14,8 @@
 //! - [`covisibility`]: occlusion-aware selection from coarse depth (frustum top-K, then
 //!   the share of the target's expected surface each frame saw unoccluded).
 //! - [`index`]: [`FrameMemory`], the R-tree-indexed store whose selection
-//!   equals brute force but skips frames that provably cannot enter.
+//!   equals brute force but skips frames that provably cannot enter, and
+//!   [`Stack`], memories read as one (a fork's shared history and its own frames).
 //! - [`selection`]: [`FrameMemory::plan`], the one way a policy's plan is chosen
 //!   (the index, then co-visibility when the policy carries it).
 
@@ -36,7 +37,7 @@ pub mod variants;
 pub use camera::Intrinsics;
 pub use error::InputError;
 pub use frustum::Frustum;
-pub use index::{FrameMemory, SelectionStats};
+pub use index::{FrameMemory, SelectionStats, Stack};
 pub use overlap::Estimator;
 pub use policy::{ContextPlan, LatentGrid, MemoryFrame, Packing, CoVisibility, Policy, PolicyKind, PolicySpec, Query, Ranking, ScoreWeights, select_by_brute_force};
 pub use selection::Selection;

@@ -1,4 +1,5 @@
-//! The one way a plan is chosen. [`FrameMemory::plan`] runs the policy's
+//! The one way a plan is chosen. [`Stack::plan`] (and [`FrameMemory::plan`],
+//! a stack of one) runs the policy's
 //! frustum ranking through the index ([`FrameMemory::select`]) and, when the
 //! policy carries co-visibility settings, re-ranks those candidates by what
 //! each frame saw of the target's surface ([`covisibility::rerank`]). A new
@@ -7,7 +8,7 @@
 use crate::covisibility::{self, CoVisibilityStats, DepthGrid};
 use crate::error::InputError;
 use crate::frustum::Frustum;
-use crate::index::{FrameMemory, SelectionStats};
+use crate::index::{FrameMemory, SelectionStats, Stack};
 use crate::policy::{ContextPlan, Policy};
 
 /// A plan and what choosing it cost.
@@ -21,6 +22,19 @@ pub struct Selection {
 }
 
 impl FrameMemory {
+    /// `policy`'s plan for `target` (see [`Stack::plan`]).
+    pub fn plan<'a>(
+        &self,
+        policy: &Policy,
+        target: &Frustum,
+        previous: Option<&ContextPlan>,
+        depth_of: impl Fn(u64) -> Option<&'a DepthGrid>,
+    ) -> Result<Selection, InputError> {
+        Stack::of(self).plan(policy, target, previous, depth_of)
+    }
+}
+
+impl Stack<'_> {
     /// `policy`'s plan for `target`. `depth_of` gives a stored frame's coarse
     /// depth at the policy's co-visibility grid (unused without co-visibility);
     /// `previous`, the last plan for a nearby target, only speeds things up.

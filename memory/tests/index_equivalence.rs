@@ -4,7 +4,7 @@
 use glam::{DMat3, DVec3, EulerRot};
 use memory::policy::PolicySpec;
 use memory::rng::SplitMix64;
-use memory::{ContextPlan, FrameMemory, Frustum, Intrinsics, MemoryFrame, Policy, PolicyKind, Pose, select_by_brute_force};
+use memory::{ContextPlan, FrameMemory, Frustum, Intrinsics, MemoryFrame, Policy, PolicyKind, Pose, Stack, select_by_brute_force};
 
 fn frustum(pos: DVec3, yaw: f64, pitch: f64) -> Frustum {
     let k = Intrinsics::from_fov(70.0, None, 64, 64).unwrap();
@@ -97,6 +97,58 @@ fn indexed_equals_brute_force_on_walks() {
     for seed in 10..13 {
         check(true, seed);
     }
+}
+
+/// A fork's memory: the history cut into layers at random points (each a
+/// `FrameMemory` of its own, as forks freeze them), read as one `Stack`.
+/// Every policy plans exactly what brute force over all the frames plans,
+/// warm and cold, and the stack lists its frames as one memory would.
+fn check_stack(walk: bool, seed: u64) {
+    let mut rng = SplitMix64::new(seed);
+    let poses = trajectory(&mut rng, 160, walk);
+    let frames: Vec<MemoryFrame> = poses
+        .iter()
+        .enumerate()
+        .map(|(t, &(p, y, pi))| MemoryFrame { id: 1000 + t as u64, time: t as u64 / 2, frustum: frustum(p, y, pi) })
+        .collect();
+    let mut layers: Vec<FrameMemory> = vec![FrameMemory::new()];
+    let mut whole = FrameMemory::new();
+    let policies = policies();
+    let mut previous: Vec<Option<ContextPlan>> = vec![None; policies.len()];
+    for (t, frame) in frames.iter().enumerate() {
+        // A fork point about every 30 frames, one of them right at the start.
+        if t > 0 && (t == 1 || rng.next_f64() < 1.0 / 30.0) {
+            layers.push(FrameMemory::new());
+        }
+        layers.last_mut().unwrap().insert(frame.clone()).unwrap();
+        whole.insert(frame.clone()).unwrap();
+        if t % 13 != 0 && t != frames.len() - 1 {
+            continue;
+        }
+        let stack = Stack::new(layers.iter().collect());
+        assert_eq!(stack.len(), t + 1);
+        let order = |it: &mut dyn Iterator<Item = &MemoryFrame>| it.map(|f| f.id).collect::<Vec<_>>();
+        assert_eq!(order(&mut stack.newest_first()), order(&mut whole.newest_first()));
+        assert_eq!(stack.get(frame.id).map(|f| f.time), Some(frame.time));
+        let (p, y, pi) = if t + 1 < poses.len() { poses[t + 1] } else { poses[0] };
+        let target = frustum(p, y, pi);
+        for (i, policy) in policies.iter().enumerate() {
+            let want = select_by_brute_force(policy, &target, &frames[..=t]);
+            let (got, _) = stack.select(policy, &target, previous[i].as_ref());
+            assert_eq!(got, want, "{:?} keep_last={} at t={t} over {} layers (walk={walk})", policy.kind, policy.keep_last, layers.len());
+            assert_eq!(stack.select(policy, &target, None).0, want, "cold");
+            previous[i] = Some(got);
+        }
+    }
+    assert!(layers.len() >= 3, "the history was cut into {} layers", layers.len());
+}
+
+#[test]
+fn a_stack_of_layers_selects_as_one_memory() {
+    for seed in [0, 1] {
+        check_stack(false, seed);
+    }
+    check_stack(true, 10);
 }
 
 #[test]
