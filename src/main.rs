@@ -7,7 +7,7 @@ mod commands;
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
-use commands::{bench, check, condition_study, demo, fusion_data, geometry, plan, rollout_eval, serve, sim, teacher_probe};
+use commands::{bench, check, condition_study, demo, fusion_data, geometry, plan, rollout_eval, serve, sim, teacher_probe, train};
 
 #[derive(Parser)]
 #[command(name = "worldpack", version, about = "Geometry-first memory for long-context video world models")]
@@ -51,6 +51,9 @@ enum Command {
     /// Check a suite folder against the dataset format (docs/dataset.md): every file and field
     /// that training, `plan` and `eval` read. Names the file and field of the first fault.
     Check(check::Args),
+    /// A dataset folder to a served model folder with its card: every stage of the recipe, resumable
+    /// (the trainer's package, train/; docs/training.md).
+    Train(train::Args),
     /// Answer geometry requests: JSON on stdin (one object or an array), JSON on stdout.
     ///
     /// Ops: convert, project, resize, frustum, overlap, select. See docs/cli.md.
@@ -70,6 +73,7 @@ fn main() -> ExitCode {
         Command::Compare(a) => ("compare", rollout_eval::compare(&a)),
         Command::Plan(a) => ("plan", plan::run(&a)),
         Command::Check(a) => ("check", check::run(&a)),
+        Command::Train(a) => ("train", train::run(&a)),
         Command::Geometry(a) => return geometry::run(&a),
     };
     match result {

@@ -12,3 +12,4 @@ pub mod rollout_eval;
 pub mod serve;
 pub mod sim;
 pub mod teacher_probe;
+pub mod train;

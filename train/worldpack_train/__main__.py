@@ -7,7 +7,11 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+import torch
+
+from . import distill, export, fusion, manifest, paper_scale, pipeline, recover, settings, sharpen, train
 from .config import LAYOUTS
+from .recipe import Recipe
 
 
 def main() -> None:
@@ -29,8 +33,6 @@ def main() -> None:
                        help="share of each batch's items whose context and warp-source poses get that noise")
 
     def recipe_of(a):
-        from .recipe import Recipe
-
         return Recipe(a.context_noise, a.context_noise_share, a.rollout_share, a.rollout_steps, a.generated_level,
                       a.pose_noise_translation, a.pose_noise_degrees, a.pose_noise_share)
 
@@ -40,6 +42,21 @@ def main() -> None:
         p.add_argument("--run", type=Path, required=True, help="run folder: config, checkpoints, logs")
         p.add_argument("--device", default="auto", choices=["auto", "cpu", "cuda"])
         p.add_argument("--threads", type=int, default=0, help="torch CPU threads (0: torch's default)")
+
+    p = sub.add_parser("make", help="the whole recipe, a dataset folder to a served model folder with its card "
+                       "(pipeline.py; what `worldpack train` runs; resumes when run again)")
+    p.add_argument("--data", type=Path, required=True, help="a suite in the dataset format (docs/dataset.md)")
+    p.add_argument("--out", type=Path, required=True, help="the model folder to write (train.json, lineage.json, "
+                   "train.log, MODEL.md beside the graphs)")
+    p.add_argument("--from", dest="source", help="fine-tune from a shipped family (voxel, doom) or a folder "
+                   "`worldpack train` wrote; default: from scratch")
+    p.add_argument("--hours", type=float, help="the whole command's budget in hours (default 2)")
+    p.add_argument("--device", choices=["cpu", "cuda"], help="where the training stages run (default cpu)")
+    p.add_argument("--heldout", type=Path, help="a suite to evaluate on instead of a split of --data")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a setting of train.json on a new run, e.g. teacher.steps=500 (JSON values)")
+    p.add_argument("--bin", type=Path, required=True, help="the worldpack binary (check, plan, eval)")
+    p.add_argument("--repo", type=Path, default=Path.cwd(), help="where the shipped families' fixtures/ are")
 
     p = sub.add_parser("train-ae", help="train the autoencoder (resumes from run/autoencoder.pt)")
     common(p)
@@ -230,51 +247,34 @@ def main() -> None:
     p.add_argument("--half", action="store_true", help="round the decoder to float16 and store it so")
 
     a = ap.parse_args()
-    import torch
+    if a.stage == "make":
+        pipeline.make(a.data, a.out, a.source, a.hours, a.device, a.heldout, a.bin.resolve(), a.repo.resolve(),
+                      settings.overrides(a.set))
+        return
 
     if getattr(a, "threads", 0):
         torch.set_num_threads(a.threads)
-    from . import train
-
     if a.stage == "paper-scale":
-        from . import paper_scale
-
         paper_scale.main(a.size, a.data, a.out, a.seed, a.half)
     elif a.stage == "recover":
-        from . import recover
-
         recover.recover(a.model, a.run, a.policy)
     elif a.stage == "fusion-train":
-        from . import fusion
-
         fusion.train(a.data, a.run, a.steps, a.batch, a.lr, a.minutes, a.width, edge_weight=a.edge_weight,
                      edge_landed=a.edge_landed, adversarial_weight=a.adversarial_weight,
                      adversarial_start=a.adversarial_start, init_from=a.init_from, texture_weight=a.texture_weight,
                      landed_weight=a.landed_weight)
     elif a.stage == "fusion-export":
-        from . import fusion
-
         fusion.export(a.run, a.model, a.out, a.data)
     elif a.stage == "fusion-strip":
-        from . import fusion
-
         fusion.without_head(a.model, a.out)
     elif a.stage == "fusion-pair":
-        from . import fusion
-
         fusion.pair(a.kept, a.shown, a.out, a.data, a.hole_fill, a.hole_detail, a.warp_detail, a.holes)
     elif a.stage == "warp-frames":
-        from . import manifest
-
         manifest.set_warp_frames(a.model, a.frames)
     elif a.stage == "sharpen-decoder":
-        from . import sharpen
-
         sharpen.sharpen_decoder(a.data, a.val, a.run, a.steps, a.batch, a.lr, a.edge_weight, a.adversarial_weight,
                                 a.adversarial_start, a.ema, a.device, a.minutes, a.decoder_from)
     elif a.stage == "swap-decoder":
-        from . import sharpen
-
         sharpen.swap_decoder(a.model, a.run, a.out, a.half)
     elif a.stage == "train-ae":
         train.train_autoencoder(a.data, a.run, a.steps, a.batch, a.lr, a.device, a.minutes)
@@ -291,12 +291,8 @@ def main() -> None:
         train.train_variants(a.data, a.run, a.baseline_steps, a.fraction, a.batch, a.lr, a.ema, a.device, a.minutes,
                              a.memory_focus, a.baseline, a.policies.split(",") if a.policies else None, recipe_of(a))
     elif a.stage == "export":
-        from . import export
-
         export.export(a.run, a.policy, a.layouts.split(","), a.data, a.out, a.device, a.half, a.distilled, a.fusion_from, a.decoder_from)
     elif a.stage == "distill":
-        from . import distill
-
         distill.distill(a.data, a.run, a.policy, a.grid, a.teacher_steps, a.steps, a.batch, a.lr, a.ema, a.device, a.minutes,
                         a.edge_weight, a.adversarial_weight, a.adversarial_start, a.decoder_from, a.adversarial_cap,
                         a.standardise_judged, a.judge_holes, a.judge, a.judge_noise, a.judge_lr)

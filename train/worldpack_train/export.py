@@ -185,12 +185,14 @@ def reference_rows(source: wdata.PlannedLatents, count: int) -> list[tuple[int, 
 
 
 def export(run: Path, policy: str, layout_names: list[str], data: Path, out: Path, device: str, half: bool = False,
-           distilled: int | None = None, fusion_from: Path | None = None, decoder_from: Path | None = None) -> None:
+           distilled: int | None = None, fusion_from: Path | None = None, decoder_from: Path | None = None,
+           warp_data: tuple[Path, ...] = ()) -> None:
     """A trained run's checkpoint (its EMA weights) as a model folder:
     `cdit-<policy>.pt`, or with `distilled` N the N-step student
     `distilled-<policy>-N.pt` (distill.py). `fusion_from`: a model folder
     whose fusion head the new folder keeps; `decoder_from`: one whose decoder
-    it keeps (a fine-tuned decoder on the same encoder, sharpen.py)."""
+    it keeps (a fine-tuned decoder on the same encoder, sharpen.py); `warp_data`: more
+    suites to find the warp's reference cases in when `data` has none."""
     cfg = run_config(run)
     if distilled is None:
         ckpt_path, stage = run / f"cdit-{policy}.pt", f"cdit-{policy}"
@@ -233,7 +235,7 @@ def export(run: Path, policy: str, layout_names: list[str], data: Path, out: Pat
     tolerance = {"abs": 2e-4, "rel": 1e-4} if "distilled" in ckpt else None
     write_model(cfg, ae, model, layout_names, data, out, half, training=training,
                 generated_level=ckpt.get("recipe", {}).get("generated_level", 0.0), distilled=ckpt.get("distilled"),
-                tolerance=tolerance)
+                tolerance=tolerance, warp_data=warp_data)
     if decoder_from is not None:
         manifest = json.loads((out / "manifest.json").read_text())
         theirs = json.loads((decoder_from / "manifest.json").read_text())["autoencoder"]["decoder"]
@@ -261,7 +263,7 @@ def keep_fusion_head(source: Path, out: Path) -> None:
 
 def write_model(cfg: ModelConfig, ae, model: CDiT, layout_names: list[str], data: Path, out: Path, half: bool,
                 training: dict | None, generated_level: float = 0.0, metrics: bool = True, created_by: str = "python -m worldpack_train export",
-                tolerance: dict | None = None, distilled: dict | None = None) -> None:
+                tolerance: dict | None = None, distilled: dict | None = None, warp_data: tuple[Path, ...] = ()) -> None:
     """Graphs, references (inputs from `data`'s first trajectories) and the
     manifest of one model. `training` None: untrained weights (no training
     record, no policy); `metrics` False skips the held-out figures."""
@@ -385,7 +387,7 @@ def write_model(cfg: ModelConfig, ae, model: CDiT, layout_names: list[str], data
                           "eta": 0.0, "conditioning": f"reference/denoiser_{trace_layout} (all inputs but x_t and timestep)"}
 
     if cfg.cdit.warp:
-        save_arrays(ref / "warp", warp_cases(data, ae))
+        save_arrays(ref / "warp", warp_cases((data, *warp_data), ae))
     measured = measure(cfg, ae, model, data, latent_dir, layout_names, sched, grid) if metrics else None
     for f in latent_dir.iterdir():
         f.unlink()
@@ -520,25 +522,31 @@ WARP_GAPS = (1, 4, 12, 40)  # source frames this far before the target: from nea
 
 
 @torch.no_grad()
-def warp_cases(data: Path, ae) -> dict[str, np.ndarray]:
+def warp_cases(suites: tuple[Path, ...], ae) -> dict[str, np.ndarray]:
     """Reference cases for the Rust warp (`model::warp`): source frames with
     depth, both poses, and what `warp.forward_warp` and `warp.warp_input` made.
     One case per gap, the first target from mid-trajectory on whose warp
-    covers at least a fifth of the view (a case with nothing warped checks little)."""
-    d = wdata.trajectories(data)[0]
-    rgb, depth, poses = np.load(d / "rgb.npy"), np.load(d / "depth.npy"), np.load(d / "poses.npy")
-    intrinsics = json.loads((d / "meta.json").read_text())["intrinsics"]
-    warp = lambda s, t: forward_warp(torch.from_numpy(rgb[s]), torch.from_numpy(depth[s].astype(np.int32)), intrinsics,
-                                     torch.from_numpy(poses[s]), torch.from_numpy(poses[t]))
-    src, dst = [], []
-    for gap in WARP_GAPS:
-        targets = np.arange(max(gap, len(rgb) // 2), len(rgb))
-        _, mask = warp(targets - gap, targets)
-        covered = targets[mask.float().mean(dim=(1, 2)).numpy() >= 0.2]
-        if len(covered) == 0:
-            raise SystemExit(f"export: no frame of {d} has a warp from {gap} frames back covering a fifth of the view")
-        src.append(covered[0] - gap)
-        dst.append(covered[0])
+    covers at least a fifth of the view (a case with nothing warped checks little), from
+    the first trajectory that has one for every gap."""
+    for d in (d for suite in suites for d in wdata.trajectories(suite)):
+        rgb, depth, poses = np.load(d / "rgb.npy"), np.load(d / "depth.npy"), np.load(d / "poses.npy")
+        intrinsics = json.loads((d / "meta.json").read_text())["intrinsics"]
+        warp = lambda s, t: forward_warp(torch.from_numpy(rgb[s]), torch.from_numpy(depth[s].astype(np.int32)), intrinsics,
+                                         torch.from_numpy(poses[s]), torch.from_numpy(poses[t]))
+        src, dst = [], []
+        for gap in WARP_GAPS:
+            targets = np.arange(max(gap, len(rgb) // 2), len(rgb))
+            _, mask = warp(targets - gap, targets)
+            covered = targets[mask.float().mean(dim=(1, 2)).numpy() >= 0.2]
+            if len(covered) == 0:
+                break
+            src.append(covered[0] - gap)
+            dst.append(covered[0])
+        if len(src) == len(WARP_GAPS):
+            break
+    else:
+        raise SystemExit(f"export: no trajectory of {', '.join(map(str, suites))} has, for every gap in {WARP_GAPS}, a warp from that many "
+                         "frames back covering a fifth of the view (the warp's reference cases)")
     src, dst = np.array(src), np.array(dst)
     warped, mask = warp(src, dst)
     inp = warp_input(ae.encoder, ae.scale, warped, mask, ae.cfg.downsample)
