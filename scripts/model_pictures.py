@@ -10,17 +10,15 @@ and the truth, side by side.
 import argparse
 import json
 import pathlib
-import sys
 
 import cv2
 import numpy as np
 import onnxruntime as ort
 
 ROOT = pathlib.Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT / "model" / "python"))
-from worldpack_train import data as wdata  # noqa: E402  (torch-free)
-from worldpack_train.config import LAYOUTS, DiffusionConfig  # noqa: E402
-from worldpack_train.diffusion import Schedule, sample  # noqa: E402
+from worldpack_train.core import data as wdata  # torch-free
+from worldpack_train.core.config import LAYOUTS, DiffusionConfig
+from worldpack_train.core.diffusion import Schedule, sample
 
 
 def main():

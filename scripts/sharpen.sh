@@ -55,7 +55,7 @@ case "${1:-}" in
       # The 1-step student without a head, and with the 10-step model's (MSE) head.
       ./scripts/model.sh fusion-strip --model "$served" --out runs/sharp/student_raw
       ./scripts/model.sh fusion-strip --model "$served" --out runs/sharp/student_mse_head
-      PYTHONPATH=train .venv-train/bin/python -c "from pathlib import Path; from worldpack_train.export import keep_fusion_head
+      PYTHONPATH=train .venv-train/bin/python -c "from pathlib import Path; from worldpack_train.stages.export import keep_fusion_head
 keep_fusion_head(Path('fixtures/variants/worldpack_geometry_fused'), Path('runs/sharp/student_mse_head'))"
       "$bin" eval --suite "$suite" --policies baseline --no-references \
         --extra ten_step=fixtures/variants/worldpack_geometry --extra student=runs/sharp/student_raw \

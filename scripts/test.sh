@@ -12,6 +12,8 @@ fi
 echo "==> installing Python test requirements"
 .venv/bin/python -m pip install --disable-pip-version-check -q -r tests/requirements.txt -r doom/requirements.txt
 .venv/bin/python -m pip install --disable-pip-version-check -q -e 'clients/python[gym]'
+# The trainer's torch-free modules (metrics, the manifest, the data reader), without torch.
+.venv/bin/python -m pip install --disable-pip-version-check -q --no-deps -e train
 
 if [ ! -x .venv-triton/bin/python ]; then
   # The Triton tests start PyPI's tritonserver (nvidia-pytriton). Its Python-backend

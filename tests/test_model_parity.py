@@ -6,7 +6,6 @@ names and shapes against the manifest, and the manifest's own consistency
 
 import json
 import pathlib
-import sys
 
 import numpy as np
 import onnx
@@ -14,11 +13,10 @@ import onnxruntime as ort
 import pytest
 
 ROOT = pathlib.Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT / "model" / "python"))
 
-from worldpack_train import manifest as wm  # noqa: E402  (torch-free modules only)
-from worldpack_train.config import DiffusionConfig  # noqa: E402
-from worldpack_train.diffusion import Sampler, Schedule, sample  # noqa: E402
+from worldpack_train.io import manifest as wm  # torch-free modules only
+from worldpack_train.core.config import DiffusionConfig
+from worldpack_train.core.diffusion import Sampler, Schedule, sample
 
 MODEL = ROOT / "fixtures" / "small"
 MANIFEST = json.loads((MODEL / "manifest.json").read_text())

@@ -5,7 +5,6 @@ NumPy only (the training data code needs no torch)."""
 
 import os
 import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -13,9 +12,8 @@ import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
 BIN = os.environ.get("WORLDPACK_BIN", str(ROOT / "target" / "release" / "worldpack"))
-sys.path.insert(0, str(ROOT / "model" / "python"))
-from worldpack_train import data as wdata  # noqa: E402
-from worldpack_train.config import LAYOUTS  # noqa: E402
+from worldpack_train.core import data as wdata
+from worldpack_train.core.config import LAYOUTS
 
 POLICY = "worldpack_keep_last"
 

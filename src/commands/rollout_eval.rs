@@ -216,6 +216,8 @@ pub fn compare(args: &CompareArgs) -> Result<()> {
     let out = serde_json::json!({
         "psnr": eval::metrics::psnr(&pa, &pb),
         "ssim": eval::metrics::ssim(&pa, &pb, wa, ha),
+        // The first image's gradient energy over the second's (the truth's); null for a flat second image.
+        "sharpness": eval::metrics::sharpness_ratio(&pa, &pb, wa, ha),
         "width": wa, "height": ha,
     });
     println!("{out}");

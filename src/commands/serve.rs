@@ -8,8 +8,9 @@ use crate::cli::{parse_method, parse_provider};
 
 #[derive(clap::Args)]
 pub struct Args {
-    /// Model folder (ONNX graphs + manifest.json).
-    #[arg(long, default_value = "fixtures/small")]
+    /// Model folder (ONNX graphs + manifest.json); its manifest's `serving` block sets the
+    /// sampler, steps, policy and selection it was measured with, unless the flags below say otherwise.
+    #[arg(long, default_value = SERVED_MODEL)]
     pub model: PathBuf,
     /// Run without a model: observe and select work, step answers 409.
     #[arg(long, conflicts_with = "model")]
@@ -31,15 +32,18 @@ pub struct Args {
     /// Intra-op threads per model session.
     #[arg(long, default_value_t = 1)]
     pub threads: usize,
-    /// Sampler steps per generated frame (a step request may override).
-    #[arg(long, default_value_t = 16, value_parser = clap::value_parser!(u64).range(1..=1000))]
-    pub steps: u64,
-    /// Sampler: ancestral, ddim or dpm2m (DPM-Solver++(2M): the 10-step DDIM's frames in about 8 calls).
-    #[arg(long, default_value = "ancestral", value_parser = parse_method)]
-    pub method: model::Method,
-    /// Policy of sessions that do not name one, by name (memory::variants): a preset, or an option such as worldpack_target or worldpack_keep_last.
-    #[arg(long, default_value = "worldpack", value_parser = super::plan::parse_variant)]
-    pub policy: &'static memory::Variant,
+    /// Sampler steps per generated frame (a step request may override); default: the model's
+    /// `serving` block, else 16.
+    #[arg(long, value_parser = clap::value_parser!(u64).range(1..=1000))]
+    pub steps: Option<u64>,
+    /// Sampler: ancestral, ddim or dpm2m (DPM-Solver++(2M): the 10-step DDIM's frames in about 8 calls);
+    /// default: the model's `serving` block, else ancestral.
+    #[arg(long, value_parser = parse_method)]
+    pub method: Option<model::Method>,
+    /// Policy of sessions that do not name one, by name (memory::variants): a preset, or an option such as
+    /// worldpack_keep_last; default: the model's `serving` block, else worldpack.
+    #[arg(long, value_parser = super::plan::parse_variant)]
+    pub policy: Option<&'static memory::Variant>,
     /// Requests queued on one session before the next is refused with 429.
     #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u64).range(1..=100_000))]
     pub max_queue: u64,
@@ -52,9 +56,10 @@ pub struct Args {
     pub overlay_warp: bool,
     /// Sessions that do not name a policy choose each step's plan and a geometry model's warp
     /// sources by co-visibility from the observed frames' depth instead of frustum overlap
-    /// (their policy's `covisibility`, at its defaults; docs/geometry.md).
-    #[arg(long)]
-    pub covisible: bool,
+    /// (their policy's `covisibility`, at its defaults; docs/geometry.md). `--covisible false`
+    /// turns it off for a model whose `serving` block turns it on.
+    #[arg(long, num_args = 0..=1, default_missing_value = "true")]
+    pub covisible: Option<bool>,
     /// Batching across sessions: gather concurrent steps' model calls for up to this many
     /// milliseconds into one call (0: off, each step calls alone).
     #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u64).range(0..=1000))]
@@ -98,6 +103,18 @@ pub fn run(a: Args) -> Result<()> {
     if !(rate_per_tenant.is_finite() && rate_per_tenant > 0.0) {
         bail!("--rate-per-tenant: must be a positive number, got {rate_per_tenant}");
     }
+    let served = if memory_only { Serving::default() } else { Serving::of(&model)? };
+    let steps = steps.or(served.steps).unwrap_or(16);
+    let method = match method {
+        Some(m) => m,
+        None => served.method.as_deref().unwrap_or("ancestral").parse().map_err(|e| anyhow::anyhow!("{}: serving.method: {e}", model.display()))?,
+    };
+    let policy = match policy {
+        Some(p) => p,
+        None => super::plan::parse_variant(served.policy.as_deref().unwrap_or("worldpack"))
+            .map_err(|e| anyhow::anyhow!("{}: serving.policy: {e}", model.display()))?,
+    };
+    let covisible = covisible.or(served.covisible).unwrap_or(false);
     let limits = api::auth::Limits { sessions: max_sessions_per_tenant as usize, rate: rate_per_tenant };
     let env = std::env::var(api::auth::TOKENS_ENV).ok();
     let tokens = std::sync::Arc::new(api::auth::Tokens::load(tokens_file.as_deref(), env.as_deref(), &limits).map_err(anyhow::Error::msg)?);
@@ -124,6 +141,34 @@ pub fn run(a: Args) -> Result<()> {
         ..api::Config::default()
     };
     serve(config)
+}
+
+/// The model served when `--model` is not given: the voxel world's 1-step student
+/// (docs/models.md), whose manifest says how it is served.
+pub const SERVED_MODEL: &str = "fixtures/variants/worldpack_geometry_fused_1step";
+
+/// How a model folder is served as its card measured it: its manifest's `serving` block
+/// (written by `worldpack train`). Every field is optional; flags override each.
+#[derive(Default, serde::Deserialize)]
+struct Serving {
+    policy: Option<String>,
+    method: Option<String>,
+    steps: Option<u64>,
+    covisible: Option<bool>,
+}
+
+impl Serving {
+    fn of(model: &std::path::Path) -> Result<Self> {
+        let path = model.join("manifest.json");
+        let text = std::fs::read_to_string(&path).map_err(|e| anyhow::anyhow!("--model: cannot read {}: {e}", path.display()))?;
+        #[derive(serde::Deserialize)]
+        struct Head {
+            #[serde(default)]
+            serving: Option<Serving>,
+        }
+        let head: Head = serde_json::from_str(&text).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+        Ok(head.serving.unwrap_or_default())
+    }
 }
 
 fn serve(config: api::Config) -> Result<()> {

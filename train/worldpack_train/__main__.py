@@ -1,6 +1,7 @@
-"""`python -m worldpack_train <stage>`: train-ae, encode, train, variants, distill, export, paper-scale, recover,
-fusion-train, fusion-export, fusion-pair, sharpen-decoder, swap-decoder.
-See docs/model.md for the whole recipe."""
+"""`python -m worldpack_train <stage>`: `make` (what `worldpack train` runs: the whole recipe,
+pipeline.py), and the stages it is made of for those who run them by hand: train-ae, encode,
+train, variants, distill, export, paper-scale, recover, fusion-train, fusion-export,
+fusion-strip, fusion-pair, warp-frames, sharpen-decoder, swap-decoder (docs/training.md)."""
 
 from __future__ import annotations
 
@@ -9,40 +10,41 @@ from pathlib import Path
 
 import torch
 
-from . import distill, export, fusion, manifest, paper_scale, pipeline, recover, settings, sharpen, train
-from .config import LAYOUTS
-from .recipe import Recipe
+from . import pipeline, settings
+from .core.config import LAYOUTS
+from .core.recipe import Recipe
+from .io import manifest
+from .stages import autoencoder, denoiser, distill, export, fusion, paper_scale, recover, sharpen
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(prog="worldpack_train", description=__doc__)
-    sub = ap.add_subparsers(dest="stage", required=True)
+def recipe_options(p):
+    g = p.add_argument_group("training for autoregressive stability (recipe.py; all off by default)")
+    g.add_argument("--context-noise", type=float, default=0.0, help="largest noise level on context latents (0: off)")
+    g.add_argument("--context-noise-share", type=float, default=0.5, help="share of context frames that get noise")
+    g.add_argument("--rollout-share", type=float, default=0.0,
+                   help="share of each batch whose newest context frame is the model's own prediction (0: off)")
+    g.add_argument("--rollout-steps", type=int, default=4, help="DDIM steps for those predictions")
+    g.add_argument("--generated-level", type=float, default=0.0,
+                   help="context noise level that marks a generated frame (in training and, via the manifest, at inference)")
+    g.add_argument("--pose-noise-translation", type=float, default=0.0, help="sd of context pose noise, blocks")
+    g.add_argument("--pose-noise-degrees", type=float, default=0.0, help="sd of context rotation noise, degrees")
+    g.add_argument("--pose-noise-share", type=float, default=1.0,
+                   help="share of each batch's items whose context and warp-source poses get that noise")
 
-    def recipe_options(p):
-        g = p.add_argument_group("training for autoregressive stability (recipe.py; all off by default)")
-        g.add_argument("--context-noise", type=float, default=0.0, help="largest noise level on context latents (0: off)")
-        g.add_argument("--context-noise-share", type=float, default=0.5, help="share of context frames that get noise")
-        g.add_argument("--rollout-share", type=float, default=0.0,
-                       help="share of each batch whose newest context frame is the model's own prediction (0: off)")
-        g.add_argument("--rollout-steps", type=int, default=4, help="DDIM steps for those predictions")
-        g.add_argument("--generated-level", type=float, default=0.0,
-                       help="context noise level that marks a generated frame (in training and, via the manifest, at inference)")
-        g.add_argument("--pose-noise-translation", type=float, default=0.0, help="sd of context pose noise, blocks")
-        g.add_argument("--pose-noise-degrees", type=float, default=0.0, help="sd of context rotation noise, degrees")
-        g.add_argument("--pose-noise-share", type=float, default=1.0,
-                       help="share of each batch's items whose context and warp-source poses get that noise")
+def recipe_of(a):
+    return Recipe(a.context_noise, a.context_noise_share, a.rollout_share, a.rollout_steps, a.generated_level,
+                  a.pose_noise_translation, a.pose_noise_degrees, a.pose_noise_share)
 
-    def recipe_of(a):
-        return Recipe(a.context_noise, a.context_noise_share, a.rollout_share, a.rollout_steps, a.generated_level,
-                      a.pose_noise_translation, a.pose_noise_degrees, a.pose_noise_share)
+def common(p, data=True):
+    if data:
+        p.add_argument("--data", type=Path, required=True, help="a suite from `worldpack sim dataset`")
+    p.add_argument("--run", type=Path, required=True, help="run folder: config, checkpoints, logs")
+    p.add_argument("--device", default="auto", choices=["auto", "cpu", "cuda"])
+    p.add_argument("--threads", type=int, default=0, help="torch CPU threads (0: torch's default)")
 
-    def common(p, data=True):
-        if data:
-            p.add_argument("--data", type=Path, required=True, help="a suite from `worldpack sim dataset`")
-        p.add_argument("--run", type=Path, required=True, help="run folder: config, checkpoints, logs")
-        p.add_argument("--device", default="auto", choices=["auto", "cpu", "cuda"])
-        p.add_argument("--threads", type=int, default=0, help="torch CPU threads (0: torch's default)")
 
+def add_product(sub) -> None:
+    """The one command: a dataset folder to a served model folder."""
     p = sub.add_parser("make", help="the whole recipe, a dataset folder to a served model folder with its card "
                        "(pipeline.py; what `worldpack train` runs; resumes when run again)")
     p.add_argument("--data", type=Path, required=True, help="a suite in the dataset format (docs/dataset.md)")
@@ -58,16 +60,17 @@ def main() -> None:
     p.add_argument("--bin", type=Path, required=True, help="the worldpack binary (check, plan, eval)")
     p.add_argument("--repo", type=Path, default=Path.cwd(), help="where the shipped families' fixtures/ are")
 
+
+def add_training(sub) -> None:
+    """The training stages: autoencoder, latents, CDiT, the paper's variants, the distilled student."""
     p = sub.add_parser("train-ae", help="train the autoencoder (resumes from run/autoencoder.pt)")
     common(p)
     p.add_argument("--steps", type=int, default=4000)
     p.add_argument("--batch", type=int, default=32)
     p.add_argument("--lr", type=float, default=1e-3)
     p.add_argument("--minutes", type=float, help="stop (and checkpoint) after this much wall time")
-
     p = sub.add_parser("encode", help="cache every frame's scaled latent under run/latents")
     common(p)
-
     p = sub.add_parser("train", help="train the CDiT on one policy's plans (resumes from run/cdit-<policy>.pt); "
                        "trains the autoencoder and caches latents first when they are missing")
     common(p)
@@ -84,7 +87,6 @@ def main() -> None:
     p.add_argument("--warp", action="store_true",
                    help="the geometry model: a stored frame depth-warped into the target view is a model input (warp.py)")
     recipe_options(p)
-
     p = sub.add_parser("variants", help="the paper's order: the 4-frame baseline from scratch, then nearest frame "
                        "packing, memory retrieval and WorldPack each fine-tuned from it (resumable, one stage at a time)")
     common(p)
@@ -100,19 +102,6 @@ def main() -> None:
                    help="fine-tune from this finished baseline checkpoint instead of training one in --run")
     p.add_argument("--policies", help="comma-separated fine-tunes (default: nearest_frame_packing,memory_retrieval,worldpack)")
     recipe_options(p)
-
-    p = sub.add_parser("export", help="write ONNX graphs, manifest.json and references to --out")
-    common(p, data=False)
-    p.add_argument("--policy", default="worldpack", help="which checkpoint: run/cdit-<policy>.pt")
-    p.add_argument("--layouts", default="worldpack,baseline", help="comma-separated context layouts to export")
-    p.add_argument("--data", type=Path, required=True, help="a suite for the reference inputs and metrics (test split)")
-    p.add_argument("--out", type=Path, required=True)
-    p.add_argument("--half", action="store_true", help="round the weights to float16 and store them so (half the size)")
-    p.add_argument("--distilled", type=int, help="export the N-step student run/distilled-<policy>-N.pt instead")
-    p.add_argument("--fusion-from", type=Path, help="a model folder whose fusion head the export keeps (a student keeps its teacher's)")
-    p.add_argument("--decoder-from", type=Path, help="a model folder whose decoder the export keeps (a sharpened one, "
-                   "`sharpen-decoder`; its encoder must be the run's)")
-
     p = sub.add_parser("distill", help="distil a trained CDiT's DDIM sampler into a few-step student "
                        "(distill.py; resumes from run/distilled-<policy>-<N>.pt)")
     common(p)
@@ -150,6 +139,20 @@ def main() -> None:
                    help="with --judge teacher: latents are re-noised to a timestep drawn below this one")
     p.add_argument("--judge-lr", type=float, help="the discriminator's learning rate (default: --lr)")
 
+
+def add_models(sub) -> None:
+    """Model folders: export, the paper-scale fixture, recovery into a run, the warp's frame count."""
+    p = sub.add_parser("export", help="write ONNX graphs, manifest.json and references to --out")
+    common(p, data=False)
+    p.add_argument("--policy", default="worldpack", help="which checkpoint: run/cdit-<policy>.pt")
+    p.add_argument("--layouts", default="worldpack,baseline", help="comma-separated context layouts to export")
+    p.add_argument("--data", type=Path, required=True, help="a suite for the reference inputs and metrics (test split)")
+    p.add_argument("--out", type=Path, required=True)
+    p.add_argument("--half", action="store_true", help="round the weights to float16 and store them so (half the size)")
+    p.add_argument("--distilled", type=int, help="export the N-step student run/distilled-<policy>-N.pt instead")
+    p.add_argument("--fusion-from", type=Path, help="a model folder whose fusion head the export keeps (a student keeps its teacher's)")
+    p.add_argument("--decoder-from", type=Path, help="a model folder whose decoder the export keeps (a sharpened one, "
+                   "`sharpen-decoder`; its encoder must be the run's)")
     p = sub.add_parser("paper-scale", help="a model folder at the paper's shapes (224x224 frames, 4x28x28 latents, "
                        "844 vs 784 context tokens) with random seeded weights: --size paper (CDiT-B/2, SD-VAE-shaped "
                        "autoencoder) to benchmark, --size smoke (same tokens, narrow) for the committed fixture")
@@ -159,13 +162,19 @@ def main() -> None:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--half", action="store_true", help="round the weights to float16 and store them so (half the size)")
     p.add_argument("--threads", type=int, default=0, help="torch CPU threads (0: torch's default)")
-
     p = sub.add_parser("recover", help="rebuild a run folder's checkpoints (config, autoencoder, CDiT) from an exported "
                        "model folder, checked against its reference outputs, so a committed model can be fine-tuned")
     p.add_argument("--model", type=Path, required=True, help="an exported model folder (manifest.json, ONNX graphs)")
     p.add_argument("--run", type=Path, required=True, help="the run folder to write")
     p.add_argument("--policy", help="name the checkpoint cdit-<policy>.pt (default: the manifest's training policy)")
+    p = sub.add_parser("warp-frames", help="set, in place, how many best-overlap observed frames the runtime fuses "
+                       "into a geometry model's warp input (manifest denoiser.warp.frames)")
+    p.add_argument("--model", type=Path, required=True, help="a geometry model folder")
+    p.add_argument("--frames", type=int, required=True, help="frames to fuse, at least 1 (the co-visible stage keeps 32 candidates)")
 
+
+def add_heads(sub) -> None:
+    """The fusion heads: training, export, strip and pair."""
     p = sub.add_parser("fusion-train", help="train a geometry model's fusion head on `worldpack fusion-data` examples "
                        "(fusion.py; resumes from run/fusion.pt)")
     p.add_argument("--data", type=Path, nargs="+", required=True, help="folders written by `worldpack fusion-data`")
@@ -190,18 +199,15 @@ def main() -> None:
                    help="a fusion-train run folder whose head this run starts from (a fresh optimiser, step 0)")
     p.add_argument("--minutes", type=float, help="stop (and checkpoint) after this much wall time")
     p.add_argument("--threads", type=int, default=0, help="torch CPU threads (0: torch's default)")
-
     p = sub.add_parser("fusion-export", help="copy a geometry model folder with the trained fusion head added")
     p.add_argument("--run", type=Path, required=True, help="the fusion-train run folder")
     p.add_argument("--model", type=Path, required=True, help="the geometry model folder the head was trained on")
     p.add_argument("--out", type=Path, required=True, help="the new model folder (its name becomes the model's)")
     p.add_argument("--data", type=Path, help="a fusion-data folder whose last examples become the references")
-
     p = sub.add_parser("fusion-strip", help="copy a fused model folder without its fusion head (the bare model whose "
                        "predictions `worldpack fusion-data` makes a head's examples from)")
     p.add_argument("--model", type=Path, required=True, help="the fused model folder to copy")
     p.add_argument("--out", type=Path, required=True, help="the new model folder (its name becomes the model's)")
-
     p = sub.add_parser("fusion-pair", help="copy a fused model folder with a head pair: another model's head makes the "
                        "frame shown, its own the frame the memory keeps (fusion.py HeadPair)")
     p.add_argument("--kept", type=Path, required=True, help="the fused model folder to copy; its head makes the frame kept")
@@ -218,11 +224,9 @@ def main() -> None:
     p.add_argument("--holes", type=Path, help="a fused model folder whose head's luma detail the frame shown takes in "
                    "the warp's holes (a head trained with fusion-train --texture-weight)")
 
-    p = sub.add_parser("warp-frames", help="set, in place, how many best-overlap observed frames the runtime fuses "
-                       "into a geometry model's warp input (manifest denoiser.warp.frames)")
-    p.add_argument("--model", type=Path, required=True, help="a geometry model folder")
-    p.add_argument("--frames", type=int, required=True, help="frames to fuse, at least 1 (the co-visible stage keeps 32 candidates)")
 
+def add_decoder(sub) -> None:
+    """The sharpened decoder: fine-tune and swap."""
     p = sub.add_parser("sharpen-decoder", help="fine-tune run/autoencoder.pt's decoder for sharp frames, the encoder "
                        "(so the latent space) frozen (sharpen.py; resumes from run/decoder-sharp.pt)")
     common(p)
@@ -239,14 +243,23 @@ def main() -> None:
     p.add_argument("--minutes", type=float, help="stop (and checkpoint) after this much wall time")
     p.add_argument("--decoder-from", type=Path, help="a model folder whose exported decoder the fine-tune starts from "
                    "(e.g. an earlier fine-tune's, committed); the discriminator starts afresh")
-
     p = sub.add_parser("swap-decoder", help="copy a model folder with a `sharpen-decoder` run's decoder in place of its own")
     p.add_argument("--model", type=Path, required=True, help="the model folder to copy (its encoder must be the run's)")
     p.add_argument("--run", type=Path, required=True, help="the sharpen-decoder run folder")
     p.add_argument("--out", type=Path, required=True, help="the new model folder (may be --model itself)")
     p.add_argument("--half", action="store_true", help="round the decoder to float16 and store it so")
 
-    a = ap.parse_args()
+
+def parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog="worldpack_train", description=__doc__)
+    sub = ap.add_subparsers(dest="stage", required=True)
+    for add in (add_product, add_training, add_models, add_heads, add_decoder):
+        add(sub)
+    return ap
+
+
+def main() -> None:
+    a = parser().parse_args()
     if a.stage == "make":
         pipeline.make(a.data, a.out, a.source, a.hours, a.device, a.heldout, a.bin.resolve(), a.repo.resolve(),
                       settings.overrides(a.set))
@@ -277,18 +290,18 @@ def main() -> None:
     elif a.stage == "swap-decoder":
         sharpen.swap_decoder(a.model, a.run, a.out, a.half)
     elif a.stage == "train-ae":
-        train.train_autoencoder(a.data, a.run, a.steps, a.batch, a.lr, a.device, a.minutes)
+        autoencoder.train_autoencoder(a.data, a.run, a.steps, a.batch, a.lr, a.device, a.minutes)
     elif a.stage == "encode":
-        train.encode(a.data, a.run, a.device)
+        autoencoder.encode(a.data, a.run, a.device)
     elif a.stage == "train":
         # One command from a dataset to a CDiT: earlier stages run first when their output is missing.
         if not (a.run / "autoencoder.pt").exists():
-            train.train_autoencoder(a.data, a.run, 4000, 32, 1e-3, a.device, a.minutes)
-        train.encode(a.data, a.run, a.device)  # skips trajectories already cached
-        train.train_cdit(a.data, a.run, a.policy, a.steps, a.batch, a.lr, a.ema, a.device, a.minutes, a.init_from, a.memory_focus,
+            autoencoder.train_autoencoder(a.data, a.run, 4000, 32, 1e-3, a.device, a.minutes)
+        autoencoder.encode(a.data, a.run, a.device)  # skips trajectories already cached
+        denoiser.train_cdit(a.data, a.run, a.policy, a.steps, a.batch, a.lr, a.ema, a.device, a.minutes, a.init_from, a.memory_focus,
                          recipe_of(a), a.warp)
     elif a.stage == "variants":
-        train.train_variants(a.data, a.run, a.baseline_steps, a.fraction, a.batch, a.lr, a.ema, a.device, a.minutes,
+        denoiser.train_variants(a.data, a.run, a.baseline_steps, a.fraction, a.batch, a.lr, a.ema, a.device, a.minutes,
                              a.memory_focus, a.baseline, a.policies.split(",") if a.policies else None, recipe_of(a))
     elif a.stage == "export":
         export.export(a.run, a.policy, a.layouts.split(","), a.data, a.out, a.device, a.half, a.distilled, a.fusion_from, a.decoder_from)

@@ -18,25 +18,27 @@ import hashlib
 import json
 import logging
 import os
+from pathlib import Path
 import shutil
 import subprocess
 import sys
 import time
 import traceback
-from pathlib import Path
 
 import numpy as np
 import onnxruntime as ort
 import torch
 
-from . import card, settings as wsettings
-from .config import ModelConfig
-from .distill import distill
-from .export import export
-from .manifest import set_warp_frames
-from .recipe import Recipe
-from .recover import recover
-from .train import encode, train_autoencoder, train_cdit
+from . import card
+from . import settings as wsettings
+from .core.config import ModelConfig
+from .core.recipe import Recipe
+from .io.manifest import set_warp_frames
+from .stages.autoencoder import encode, train_autoencoder
+from .stages.denoiser import train_cdit
+from .stages.distill import distill
+from .stages.export import export
+from .stages.recover import recover
 
 # Files a trajectory view links to; plans are the view's own (`worldpack plan` writes them).
 TRAJECTORY_FILES = ("meta.json", "rgb.npy", "poses.npy", "actions.npy", "phase.npy", "depth.npy", "pose5.npy")
@@ -415,7 +417,8 @@ def eval_stage(run: Run) -> dict:
     models = w / "eval" / "models"
     models.mkdir(parents=True, exist_ok=True)
     link(run.out / "baseline", models / "baseline")
-    rows = ["served_covisible", "baseline"] + (["started_from_covisible"] if fam else [])
+    # The strip's first row picks its walk: the median one of (that row − the served model).
+    rows = (["started_from_covisible"] if fam else []) + ["served_covisible", "baseline"]
     args = ["eval", "--suite", str(w / "data" / "heldout"), "--models", str(models), "--policies", "baseline",
             "--extra", f"served={run.out}", "--covisible", "served",
             "--probe-frames", str(run.settings["serving"]["warp_frames"]), "--against", "served_covisible",

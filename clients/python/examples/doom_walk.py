@@ -2,11 +2,12 @@
 depth, poses, intrinsics), generate the way back, and score every generated
 frame against the engine's own frame at that pose.
 
-    ./scripts/serve.sh --model fixtures/doom/geometry_fused --policy worldpack --covisible &
+    ./scripts/serve.sh --model fixtures/doom/geometry_fused &     # served as its manifest says
     python clients/python/examples/doom_walk.py --out doom_walk.png
 
 Needs the Doom tool's requirements (doom/requirements.txt: vizdoom, opencv) and
-runs from a checkout (it imports doom/worldpack_doom). The walk is an ABA loop
+the project's metrics (`pip install --no-deps -e train`: numpy only), and runs
+from a checkout (it imports doom/worldpack_doom). The walk is an ABA loop
 on a map no model was trained on (MAP20 by default): look around at A, walk to
 B, turn round, come back along the same points.
 """
@@ -21,16 +22,12 @@ import numpy as np
 from PIL import Image
 
 from worldpack_client import Client
+from worldpack_train.metrics import psnr
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[3] / "doom"))
 from worldpack_doom import engine as E  # noqa: E402
 from worldpack_doom import suite as S  # noqa: E402
 from worldpack_doom.walk import Geometry, out_and_back, start_points  # noqa: E402
-
-
-def psnr(a: np.ndarray, b: np.ndarray) -> float:
-    mse = np.mean((a.astype(np.float64) - b.astype(np.float64)) ** 2)
-    return float(10 * np.log10(255.0**2 / max(mse, 1e-12)))
 
 
 def ssim(a: np.ndarray, b: np.ndarray) -> float:

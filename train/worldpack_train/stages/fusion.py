@@ -27,18 +27,21 @@ from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 import shutil
 import time
-from pathlib import Path
 
 import numpy as np
+import onnx
 import torch
 from torch import nn
 import torch.nn.functional as F
 
-from .losses import (LUMA, PatchDiscriminator, adaptive_weight, detail_energy_difference, gradient_difference,
-                     hinge_discriminator, sharpness_ratio)
-from .train import resume
+from ..core.losses import (LUMA, PatchDiscriminator, adaptive_weight, detail_energy_difference, gradient_difference,
+                           hinge_discriminator)
+from ..io.checkpoints import resume
+from ..io.onnx_files import to_onnx
+from ..metrics import psnr, sharpness_ratio, to_u8
 
 INPUTS = ("predicted", "reference", "landed")  # the order model/src/manifest.rs expects
 CORRECTION = 0.25  # the largest per-channel correction beyond the blend, in [-1, 1] units
@@ -178,7 +181,6 @@ def head_of(model: Path, part: str = "kept") -> tuple[FusionHead, dict]:
     fusion.onnx (the initializers keep the PyTorch names), and its manifest
     entry as a single head's. Of a head pair, the head `part` ("shown",
     "kept" or "holes"), with the model and training the pair records for it."""
-    import onnx
     from onnx import numpy_helper
 
     manifest = json.loads((model / "manifest.json").read_text())
@@ -226,12 +228,6 @@ def load_examples(folder: Path):
         return torch.from_numpy(a).permute(0, 3, 1, 2).float() / 127.5 - 1
     landed = torch.from_numpy(np.load(folder / "landed.npy")).float()[:, None]
     return rgb("predicted"), rgb("reference"), landed, rgb("truth")
-
-
-def psnr_db(a: torch.Tensor, b: torch.Tensor) -> float:
-    """Pooled PSNR of images in [-1, 1] (255-scale, as the Rust metrics)."""
-    mse = ((a.clamp(-1, 1) - b) * 127.5).pow(2).mean().item()
-    return 10 * math.log10(255**2 / max(mse, 1e-12))
 
 
 def train(data: list[Path], run: Path, steps: int, batch: int, lr: float, minutes: float | None, width: int, seed: int = 0,
@@ -314,11 +310,11 @@ def train(data: list[Path], run: Path, steps: int, batch: int, lr: float, minute
     def held_out() -> dict:
         with torch.no_grad():
             out = torch.cat([head(pred[i:i + 256], ref[i:i + 256], landed[i:i + 256]) for i in range(cut, n, 256)])
-        t, holes = truth[cut:], 1 - landed[cut:]
-        return {"fused": psnr_db(out, t), "decoder": psnr_db(pred[cut:], t), "reference": psnr_db(ref[cut:], t),
-                "average": psnr_db((pred[cut:] + ref[cut:]) / 2, t),
-                "sharpness": sharpness_ratio(out, t), "holes_sharpness": sharpness_ratio(out, t, holes),
-                "decoder_sharpness": sharpness_ratio(pred[cut:], t)}
+        t, holes = to_u8(truth[cut:]), (landed[cut:, 0] < 0.5).cpu().numpy()
+        return {"fused": psnr(to_u8(out), t), "decoder": psnr(to_u8(pred[cut:]), t), "reference": psnr(to_u8(ref[cut:]), t),
+                "average": psnr(to_u8((pred[cut:] + ref[cut:]) / 2), t), "sharpness": sharpness_ratio(to_u8(out), t),
+                "holes_sharpness": sharpness_ratio(to_u8(out), t, holes, min_pairs=64),
+                "decoder_sharpness": sharpness_ratio(to_u8(pred[cut:]), t)}
 
     started, last_print = time.time(), time.time()
     gen = torch.Generator().manual_seed(seed + step)
@@ -408,7 +404,6 @@ def reference_images(data: Path | None, h: int, w: int) -> tuple:
 def export(run: Path, model: Path, out: Path, data: Path | None = None) -> None:
     """A copy of the model folder `model` at `out` with the head as
     `fusion.onnx`, its manifest entry and references for the parity tests."""
-    from .export import to_onnx
 
     head, state = trained_head(run)
     cfg = state["config"]
@@ -424,7 +419,6 @@ def export(run: Path, model: Path, out: Path, data: Path | None = None) -> None:
     h, w = manifest["image"]["height"], manifest["image"]["width"]
     args = reference_images(data, h, w)
     proto = to_onnx(head, args, list(INPUTS), ["image"])
-    import onnx
 
     onnx.save(proto, out / "fusion.onnx")
     folder = out / "reference" / "fusion"
@@ -468,8 +462,6 @@ def pair(kept: Path, shown: Path, out: Path, data: Path | None = None, hole_fill
             raise SystemExit(f"{flag}: an odd window of at least 3 pixels, or 0 for none; got {k}")
     if not (warp_detail >= 0 and math.isfinite(warp_detail)):
         raise SystemExit(f"--warp-detail: a tolerance in 8-bit levels, at least 0 (0: off); got {warp_detail}")
-    from .export import to_onnx
-    import onnx
     import tempfile
 
     kept_head, kept_spec = head_of(kept, "kept")

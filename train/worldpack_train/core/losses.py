@@ -3,9 +3,8 @@
 from __future__ import annotations
 
 import torch
-import torch.nn.functional as F
 from torch import nn
-
+import torch.nn.functional as F
 
 LUMA = torch.tensor([0.299, 0.587, 0.114]).view(1, 3, 1, 1)  # Rec. 601 weights, as eval::metrics' luma
 
@@ -125,29 +124,3 @@ def adaptive_weight(reconstruction: torch.Tensor, adversarial: torch.Tensor, las
     g_rec = torch.autograd.grad(reconstruction, last, retain_graph=True)[0]
     g_adv = torch.autograd.grad(adversarial, last, retain_graph=True)[0]
     return (g_rec.norm() / (g_adv.norm() + 1e-4)).clamp(0.0, 1e4).detach()
-
-
-def sharpness_ratio(predicted: torch.Tensor, truth: torch.Tensor, where: torch.Tensor | None = None) -> float:
-    """`worldpack eval`'s sharpness ratio (eval::metrics::sharpness_ratio) on
-    images in [-1, 1]: each frame's luma gradient energy (mean squared
-    difference to the right and below, on 8-bit values) over the truth's,
-    averaged over frames whose truth is not flat. `where` (N, 1, H, W, 0/1):
-    only neighbour pairs it holds at both ends count, and a frame needs 64 of
-    them (eval::metrics::sharpness_ratio_where)."""
-    def luma(x):
-        u8 = ((x.clamp(-1, 1) + 1) * 127.5).round()
-        return (u8 * LUMA.to(u8.dtype)).sum(1)
-
-    m = torch.ones_like(truth[:, 0]) if where is None else where[:, 0].float()
-    mx, my = m[:, :, 1:] * m[:, :, :-1], m[:, 1:, :] * m[:, :-1, :]
-    pairs = mx.sum((1, 2)) + my.sum((1, 2))
-
-    def energy(x):
-        y = luma(x)
-        dx = (y[:, :, 1:] - y[:, :, :-1]).pow(2) * mx
-        dy = (y[:, 1:, :] - y[:, :-1, :]).pow(2) * my
-        return (dx.sum((1, 2)) + dy.sum((1, 2))) / pairs.clamp(min=1)
-
-    e_truth, e_pred = energy(truth), energy(predicted)
-    keep = (e_truth > 0) & (pairs >= (64 if where is not None else 1))
-    return float((e_pred[keep] / e_truth[keep]).mean()) if keep.any() else float("nan")

@@ -3,8 +3,8 @@ batches. Everything here is NumPy; the trainers turn batches into tensors."""
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
+import json
 from pathlib import Path
 
 import numpy as np

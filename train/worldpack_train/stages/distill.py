@@ -64,50 +64,26 @@ from __future__ import annotations
 
 import copy
 import math
-import time
 from pathlib import Path
+import time
 
 import numpy as np
 import torch
 import torch.nn.functional as F
-from torch import nn
 from tqdm import tqdm
 
-from . import data as wdata
-from .cdit import CDiT
-from .config import LAYOUTS
-from .diffusion import Schedule
-from .losses import (PatchDiscriminator, TeacherFeatureJudge, adaptive_weight, gradient_difference,
-                     hinge_discriminator, patch_mean)
-from .recipe import ContextAugmenter, Recipe
-from .train import load_autoencoder, load_optimiser, log, optimise, pick_device, run_config, save
-from .warp import batch_warp_pixels, warp_input
-
-
-def parse_grid(text: str, timesteps: int) -> list[int]:
-    """'999,499' -> [999, 499]: strictly descending original indices, the first the last timestep."""
-    try:
-        grid = [int(x) for x in text.split(",")]
-    except ValueError:
-        raise SystemExit(f"--grid: comma-separated timestep indices, got {text!r}")
-    if grid[0] != timesteps - 1 or any(a <= b for a, b in zip(grid, grid[1:])) or grid[-1] < 0:
-        raise SystemExit(f"--grid: must start at {timesteps - 1} and descend strictly to a value >= 0, got {grid}")
-    return grid
-
-
-class EpsFromV(nn.Module):
-    """A v-predicting CDiT seen as an epsilon-predicting one:
-    eps = sqrt(1 - abar_t) x_t + sqrt(abar_t) v."""
-
-    def __init__(self, model: CDiT, alphas_cumprod: np.ndarray):
-        super().__init__()
-        self.model, self.cfg = model, model.cfg
-        self.register_buffer("alpha_bar", torch.tensor(alphas_cumprod, dtype=torch.float32), persistent=False)
-
-    def forward(self, x_t, t, action, rel_time, groups, rates=None, warp=None):
-        v = self.model(x_t, t, action, rel_time, groups, rates=rates, warp=warp)
-        ab = self.alpha_bar[t.long()].view(-1, 1, 1, 1)
-        return (1 - ab).sqrt() * x_t + ab.sqrt() * v
+from ..core import data as wdata
+from ..core.cdit import CDiT
+from ..core.config import LAYOUTS
+from ..core.diffusion import Schedule
+from ..core.losses import (PatchDiscriminator, TeacherFeatureJudge, adaptive_weight, gradient_difference,
+                           hinge_discriminator, patch_mean)
+from ..core.recipe import ContextAugmenter, Recipe
+from ..core.student import parse_grid
+from ..core.warp import batch_warp_pixels, warp_input
+from ..io.checkpoints import load_autoencoder, load_optimiser, log, pick_device, run_config, save
+from ..io.graphs import decoder_from as load_decoder
+from .denoiser import optimise
 
 
 def segment_times(start: torch.Tensor, end: torch.Tensor, steps: int) -> list[torch.Tensor]:
@@ -205,7 +181,6 @@ def distill(data: Path, run: Path, policy: str, grid_text: str, teacher_steps: i
     decoded = edge_weight > 0 or in_pixels
     autoencoder = load_autoencoder(run, dev).requires_grad_(False) if cfg.cdit.warp or decoded else None
     if decoder_from is not None:
-        from .sharpen import decoder_from as load_decoder
 
         load_decoder(decoder_from, autoencoder)
     if adversarial and standardise_judged and judged is None:

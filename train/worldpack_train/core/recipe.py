@@ -14,8 +14,8 @@ default, so a recipe with nothing set trains exactly as before.
 
 from __future__ import annotations
 
-import math
 from dataclasses import asdict, dataclass
+import math
 
 import numpy as np
 import torch

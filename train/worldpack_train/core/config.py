@@ -4,8 +4,8 @@ checkpoint, the export and the manifest all say the same thing."""
 from __future__ import annotations
 
 import dataclasses
-import json
 from dataclasses import dataclass, field
+import json
 
 # The world's action vector (see docs/world.md): what each entry means and the
 # factor the denoiser multiplies it by before embedding.

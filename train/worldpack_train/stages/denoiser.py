@@ -5,152 +5,22 @@ from __future__ import annotations
 
 import json
 import math
-import time
 from pathlib import Path
+import time
 
 import numpy as np
 import torch
 import torch.nn.functional as F
 from tqdm import tqdm
 
-from . import data as wdata
-from .autoencoder import Autoencoder, build as build_autoencoder, psnr
-from .cdit import CDiT
-from .config import LAYOUTS, ModelConfig
-from .diffusion import Schedule
-from .recipe import ContextAugmenter, Recipe
-from .warp import batch_warp
-
-
-def pick_device(name: str) -> torch.device:
-    if name == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    if name == "cuda" and not torch.cuda.is_available():
-        raise SystemExit("--device cuda: this torch sees no CUDA device (use --device cpu or auto)")
-    return torch.device(name)
-
-
-def run_config(run: Path) -> ModelConfig:
-    path = run / "config.json"
-    if path.exists():
-        return ModelConfig.from_json(json.loads(path.read_text()))
-    cfg = ModelConfig()
-    run.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(cfg.to_json(), indent=2))
-    return cfg
-
-
-def log(run: Path, record: dict) -> None:
-    with open(run / "log.jsonl", "a") as f:
-        f.write(json.dumps(record) + "\n")
-
-
-def save(path: Path, **state) -> None:
-    tmp = path.with_suffix(".tmp")
-    torch.save(state, tmp)
-    tmp.replace(path)  # a crash mid-save never leaves a torn checkpoint
-
-
-def load_optimiser(opt: torch.optim.Optimizer, state: dict, ckpt: Path, key: str = "opt") -> None:
-    """Restores `opt`'s moments from checkpoint `ckpt`'s `state[key]`, keeping the
-    learning rates `opt` was built with: a resumed run takes the `--lr` it is
-    given, not the one it was saved with. A checkpoint recovered from an export
-    has no moments (the weights survive, the optimiser does not): it says so."""
-    if key not in state:
-        print(f"{ckpt.name} has no optimiser state (recovered from an export): AdamW starts afresh")
-        return
-    asked = [g["lr"] for g in opt.param_groups]
-    opt.load_state_dict(state[key])
-    for group, lr in zip(opt.param_groups, asked):
-        group["lr"] = lr
-
-
-def resume(ckpt: Path, model: torch.nn.Module, opt: torch.optim.Optimizer, what: str, device="cpu", key: str = "model") -> int:
-    """Loads `model` (saved under `key`) and its optimiser from `ckpt` when
-    it exists; returns the step it was saved at (0 without a checkpoint)."""
-    if not ckpt.exists():
-        return 0
-    state = torch.load(ckpt, map_location=device, weights_only=False)
-    model.load_state_dict(state[key])
-    load_optimiser(opt, state, ckpt)
-    print(f"resuming {what} at step {state['step']}")
-    return state["step"]
-
-
-def train_autoencoder(data: Path, run: Path, steps: int, batch: int, lr: float, device: str, minutes: float | None) -> None:
-    cfg = run_config(run)
-    dev = pick_device(device)
-    frames = wdata.Frames(data)
-    ae = build_autoencoder(cfg.autoencoder).to(dev)
-    opt = torch.optim.AdamW(ae.parameters(), lr=lr, weight_decay=0.0)
-    ckpt = run / "autoencoder.pt"
-    step = resume(ckpt, ae, opt, "the autoencoder", dev)
-    rng = np.random.default_rng(step)
-    deadline = time.time() + minutes * 60 if minutes is not None else math.inf
-    bar = tqdm(total=steps, initial=step, desc="autoencoder", unit="step")
-    while step < steps and time.time() < deadline:
-        x = torch.from_numpy(frames.batch(rng, batch)).to(dev)
-        z = ae.encoder(x)
-        # Noise on the latent teaches the decoder to tolerate a sampler's small errors.
-        z_noisy = z + 0.05 * z.detach().std() * torch.randn_like(z)
-        y = ae.decoder(z_noisy)
-        loss = F.l1_loss(y, x) + F.mse_loss(y, x) + 1e-4 * z.pow(2).mean()
-        opt.zero_grad(set_to_none=True)
-        loss.backward()
-        torch.nn.utils.clip_grad_norm_(ae.parameters(), 10.0)
-        opt.step()
-        step += 1
-        bar.update(1)
-        if step % 50 == 0:
-            p = psnr(y.detach(), x)
-            bar.set_postfix(loss=f"{loss.item():.4f}", psnr=f"{p:.2f}")
-            log(run, {"stage": "autoencoder", "step": step, "loss": loss.item(), "psnr": p})
-        if step % 500 == 0:
-            save(ckpt, model=ae.state_dict(), opt=opt.state_dict(), step=step)
-    bar.close()
-    # The latent scale, as SD's 0.18215: one over the latents' standard deviation.
-    with torch.no_grad():
-        zs = torch.cat([ae.encoder(torch.from_numpy(frames.batch(np.random.default_rng(1), 64)).to(dev)) for _ in range(8)])
-        ae.scale.fill_(1.0 / zs.std().item())
-    save(ckpt, model=ae.state_dict(), opt=opt.state_dict(), step=step)
-    print(f"autoencoder at step {step}; latent scale {ae.scale.item():.5f}")
-
-
-@torch.no_grad()
-def evaluate_autoencoder(ae: Autoencoder, data: Path, dev: torch.device, frames: int = 512) -> float:
-    rng = np.random.default_rng(12345)
-    x = torch.from_numpy(wdata.Frames(data).batch(rng, frames)).to(dev)
-    y = torch.cat([ae.decoder(ae.encoder(c)) for c in x.split(64)])
-    return psnr(y, x)
-
-
-def load_autoencoder(run: Path, dev: torch.device) -> Autoencoder:
-    cfg = run_config(run)
-    ckpt = run / "autoencoder.pt"
-    if not ckpt.exists():
-        raise SystemExit(f"--run: no autoencoder.pt in {run}; run `train-ae` first")
-    ae = build_autoencoder(cfg.autoencoder).to(dev)
-    ae.load_state_dict(torch.load(ckpt, map_location=dev)["model"])
-    return ae.eval()
-
-
-@torch.no_grad()
-def encode(data: Path, run: Path, device: str) -> None:
-    """Caches every frame's scaled latent (float16) under run/latents/."""
-    dev = pick_device(device)
-    ae = load_autoencoder(run, dev)
-    out = run / "latents"
-    out.mkdir(exist_ok=True)
-    dirs = wdata.trajectories(data)
-    for d in tqdm(dirs, desc="encode", unit="traj"):
-        target = out / f"{d.name}.npy"
-        if target.exists():
-            continue
-        rgb = np.load(d / "rgb.npy")
-        z = torch.cat([ae.encoder(torch.from_numpy(wdata.to_unit_range(c)).to(dev)) for c in np.array_split(rgb, max(1, len(rgb) // 256))])
-        np.save(target.with_suffix(".tmp.npy"), (z * ae.scale).cpu().numpy().astype(np.float16))
-        target.with_suffix(".tmp.npy").replace(target)
-    print(f"latents for {len(dirs)} trajectories in {out}")
+from ..core import data as wdata
+from ..core.cdit import CDiT
+from ..core.config import LAYOUTS
+from ..core.diffusion import Schedule
+from ..core.recipe import ContextAugmenter, Recipe
+from ..core.warp import batch_warp
+from ..io.checkpoints import checkpoint_step, load_autoencoder, load_optimiser, log, pick_device, run_config, save
+from .autoencoder import encode, train_autoencoder
 
 
 def load_initial_weights(model: CDiT, init_from: Path, dev: torch.device) -> None:
@@ -289,10 +159,6 @@ def train_cdit(data: Path, run: Path, policy: str, steps: int, batch: int, lr: f
 
 
 FINE_TUNED = ["nearest_frame_packing", "memory_retrieval", "worldpack"]
-
-
-def checkpoint_step(path: Path) -> int:
-    return int(torch.load(path, map_location="cpu")["step"]) if path.exists() else 0
 
 
 def train_variants(data: Path, run: Path, baseline_steps: int, fraction: float, batch: int, lr: float, ema_decay: float,

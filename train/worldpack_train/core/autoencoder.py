@@ -6,10 +6,11 @@ side. Deterministic; like SD, the diffusion model sees `latent * scale`, where
 from __future__ import annotations
 
 import torch
-import torch.nn.functional as F
 from torch import nn
+import torch.nn.functional as F
 
 from .config import AutoencoderConfig
+from .sdvae import SDVAEShaped
 
 
 class ResBlock(nn.Module):
@@ -68,15 +69,9 @@ class Autoencoder(nn.Module):
 def build(cfg: AutoencoderConfig) -> nn.Module:
     """The autoencoder `cfg.kind` names, untrained."""
     if cfg.kind == "sd-vae":
-        from .sdvae import SDVAEShaped
 
         return SDVAEShaped(cfg)
     if cfg.kind != "small":
         raise SystemExit(f"config autoencoder.kind: {cfg.kind!r} is neither \"small\" nor \"sd-vae\"")
     return Autoencoder(cfg)
 
-
-def psnr(a: torch.Tensor, b: torch.Tensor) -> float:
-    """PSNR in dB of images in [-1, 1] (peak-to-peak 2), over the whole batch."""
-    mse = F.mse_loss(a.clamp(-1, 1), b.clamp(-1, 1)).item()
-    return 10 * torch.log10(torch.tensor(4.0 / max(mse, 1e-12))).item()

@@ -23,20 +23,24 @@ from __future__ import annotations
 import copy
 import json
 import math
+from pathlib import Path
 import shutil
 import time
-from pathlib import Path
 
 import numpy as np
+import onnx
 import torch
-import torch.nn.functional as F
 from torch import nn
+import torch.nn.functional as F
 from tqdm import tqdm
 
-from . import data as wdata
-from .autoencoder import psnr
-from .losses import PatchDiscriminator, adaptive_weight, gradient_difference, hinge_discriminator, sharpness_ratio
-from .train import load_autoencoder, log, optimise, pick_device, save
+from ..core import data as wdata
+from ..core.losses import PatchDiscriminator, adaptive_weight, gradient_difference, hinge_discriminator
+from ..io.checkpoints import load_autoencoder, log, pick_device, save
+from ..io.graphs import check_same_encoder, decoder_from
+from ..io.onnx_files import round_to_half, save_arrays, store_half, to_onnx
+from ..metrics import psnr, sharpness_ratio, to_u8
+from .denoiser import optimise
 
 CHECKPOINT = "decoder-sharp.pt"
 # The decoder sees its latent with this much noise (relative to the latents'
@@ -56,42 +60,7 @@ def score(encoder: nn.Module, decoder: nn.Module, images: torch.Tensor) -> tuple
     decoder.eval()
     y = torch.cat([decoder(encoder(c)) for c in images.split(64)])
     decoder.train(was_training)
-    return psnr(y, images), sharpness_ratio(y, images)
-
-
-def reference_gap(module: nn.Module, ref: Path, given: str, expected: str) -> float:
-    """The largest difference between `module` run on a reference folder's input
-    array and its output array. Run on the CPU, where the reference was made:
-    a GPU's TF32 convolutions alone differ by about 1e-3."""
-    with torch.no_grad():
-        got = copy.deepcopy(module).cpu()(torch.from_numpy(np.load(ref / given))).numpy()
-    return float(np.abs(got - np.load(ref / expected)).max())
-
-
-def decoder_from(model_dir: Path, autoencoder: nn.Module) -> None:
-    """Loads a model folder's exported decoder into `autoencoder` (a committed
-    fine-tune continues from its graph, an export or a student takes a sharpened
-    one), checked against the folder's reference. The autoencoder's encoder
-    must be the folder's: a decoder fits only the latent space it was trained on."""
-    from .recover import Graph, load_state
-
-    check_same_encoder(autoencoder.encoder, model_dir, "--decoder-from: the run's encoder")
-    decoder = autoencoder.decoder
-    manifest = json.loads((model_dir / "manifest.json").read_text())
-    load_state(decoder, [Graph(model_dir / manifest["autoencoder"]["decoder"]["file"])], "")
-    ref = model_dir / "reference" / "decoder"
-    worst = reference_gap(decoder, ref, "latent.npy", "image.npy")
-    if worst > 1e-3:
-        raise SystemExit(f"--decoder-from: the rebuilt decoder differs from {ref} by {worst:.2e}")
-
-
-def check_same_encoder(encoder: nn.Module, model_dir: Path, what: str) -> None:
-    """Refuses to put a decoder and an encoder together that were not trained
-    on the same latent space: `encoder` must reproduce `model_dir`'s encoder reference."""
-    worst = reference_gap(encoder, model_dir / "reference" / "encoder", "image.npy", "latent.npy")
-    if worst > 1e-3:
-        raise SystemExit(f"{what} is not {model_dir}'s (latents differ by {worst:.2e}); "
-                         "a decoder trained on one would not fit the other's latents")
+    return psnr(to_u8(y), to_u8(images)), sharpness_ratio(to_u8(y), to_u8(images))
 
 
 def sharpen_decoder(data: Path, val: Path | None, run: Path, steps: int, batch: int, lr: float, edge_weight: float,
@@ -182,8 +151,6 @@ def swap_decoder(model_dir: Path, run: Path, out: Path, half: bool) -> None:
     its own. The encoder (so the latent space), denoiser and any fusion head
     are copied unchanged; the decoder's graph and reference are rewritten and
     the manifest records what the decoder is."""
-    from .export import round_to_half, save_arrays, store_half, to_onnx
-    import onnx
 
     state = torch.load(run / CHECKPOINT, map_location="cpu")
     ae = load_autoencoder(run, torch.device("cpu"))

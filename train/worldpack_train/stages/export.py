@@ -7,36 +7,31 @@ ONNX external data), so exporting a second layout costs kilobytes."""
 
 from __future__ import annotations
 
-import hashlib
-import inspect
 import json
-import time
 from pathlib import Path
+import shutil
+import time
 
 import numpy as np
 import onnx
 import torch
 from torch import nn
 
-from . import data as wdata
-from .autoencoder import psnr
-from .cdit import CDiT
-from .config import ACTION_NAMES, ACTION_SCALE, LAYOUTS, Layout, ModelConfig, tokens_per_frame
-from .diffusion import Schedule, sample
-from .warp import batch_warp, forward_warp, warp_input
-from .train import evaluate_autoencoder, load_autoencoder, run_config
+from ..core import data as wdata
+from ..core.cdit import CDiT
+from ..core.config import ACTION_NAMES, ACTION_SCALE, LAYOUTS, Layout, ModelConfig, tokens_per_frame
+from ..core.diffusion import Schedule, sample
+from ..core.student import EpsFromV
+from ..core.warp import batch_warp, forward_warp, warp_input
+from ..io.checkpoints import load_autoencoder, run_config
+from ..io.graphs import decoder_from as load_decoder
+from ..io.onnx_files import context_keys, round_to_half, save_arrays, share_weights, store_half, tensor_spec, to_onnx
+from ..metrics import psnr, to_u8
+from .autoencoder import evaluate_autoencoder
 
 MANIFEST_FORMAT = "worldpack-model/1"
-OPSET = 18
-IR_VERSION = 10  # what opset 18 needs; ONNX Runtime 1.31 loads it (the parity tests check)
 REFERENCE_BATCH = 2
 TRACE_STEPS = 4
-
-
-def context_keys(cfg: ModelConfig) -> tuple[str, ...]:
-    """A context group's inputs, in the model's order."""
-    keys = ("context", "context_time", "context_pose", "context_mask")
-    return keys + ("context_noise",) if cfg.cdit.context_noise else keys
 
 
 def input_names(cfg: ModelConfig, layout: Layout) -> list[str]:
@@ -59,89 +54,6 @@ class LayoutGraph(nn.Module):
         groups = [tuple(context[k * i: k * i + k]) for i in range(len(self.layout.rates))]
         warp = context[-1] if self.model.cfg.warp else None
         return self.model(x_t, timestep, action, rel_time, groups, rates=self.layout.rates, warp=warp)
-
-
-def to_onnx(module: nn.Module, args: tuple, names: list[str], outputs: list[str]) -> onnx.ModelProto:
-    module.eval()  # an inference graph (a wrapper such as LayoutGraph is built in training mode)
-    batch = torch.export.Dim("batch", min=1, max=1024)
-    shapes = [{0: batch} for _ in args]
-    fixed = [p for p in inspect.signature(module.forward).parameters.values() if p.kind != p.VAR_POSITIONAL]
-    if len(fixed) < len(args):  # torch.export wants *args' shapes as one nested tuple
-        shapes = shapes[: len(fixed)] + [tuple(shapes[len(fixed):])]
-    program = torch.onnx.export(module, args, input_names=names, output_names=outputs, dynamic_shapes=tuple(shapes),
-                                opset_version=OPSET, dynamo=True, verbose=False)
-    proto = program.model_proto
-    proto.ir_version = IR_VERSION
-    for node in proto.graph.node:  # the exporter's per-node stack traces: most of the file, no use at runtime
-        del node.metadata_props[:]
-    onnx.checker.check_model(proto)
-    return proto
-
-
-def share_weights(protos: dict[str, onnx.ModelProto], weights: Path) -> None:
-    """Moves every initializer of 1 KiB or more into one external-data file,
-    storing identical tensors once (the layouts share all their weights)."""
-    offsets: dict[str, tuple[int, int]] = {}
-    with open(weights, "wb") as f:
-        for proto in protos.values():
-            for init in proto.graph.initializer:
-                raw = onnx.numpy_helper.to_array(init).tobytes()
-                if len(raw) < 1024:
-                    continue
-                # By content alone: the exporter names folded constants differently per graph.
-                key = hashlib.sha256(raw).hexdigest()
-                if key not in offsets:
-                    f.write(b"\0" * ((-f.tell()) % 64))  # 64-byte alignment lets the runtime map it
-                    offsets[key] = (f.tell(), len(raw))
-                    f.write(raw)
-                offset, length = offsets[key]
-                init.ClearField("raw_data")
-                for field in ("float_data", "int64_data", "int32_data", "double_data"):
-                    init.ClearField(field)
-                init.data_location = onnx.TensorProto.EXTERNAL
-                del init.external_data[:]
-                for k, v in (("location", weights.name), ("offset", str(offset)), ("length", str(length))):
-                    entry = init.external_data.add()
-                    entry.key, entry.value = k, v
-
-
-def round_to_half(*modules: nn.Module) -> None:
-    """Rounds every parameter to the nearest float16 value (kept as float32),
-    so that the model the references come from is exactly the one stored."""
-    with torch.no_grad():
-        for m in modules:
-            for p in m.parameters():
-                p.copy_(p.half().float())
-
-
-def store_half(proto: onnx.ModelProto) -> None:
-    """Stores each float32 initializer that float16 holds exactly as float16
-    behind a Cast back to float32 (ONNX Runtime folds the Cast when it loads
-    the graph), halving the file. Initializers that would lose a bit, such as
-    folded constants, stay float32, so the graph computes what it did."""
-    casts = []
-    for init in proto.graph.initializer:
-        if init.data_type != onnx.TensorProto.FLOAT:
-            continue
-        a = onnx.numpy_helper.to_array(init)
-        if a.size < 256 or not np.array_equal(a.astype(np.float16).astype(np.float32), a):
-            continue
-        name = init.name
-        init.CopyFrom(onnx.numpy_helper.from_array(a.astype(np.float16), name + "__f16"))
-        casts.append(onnx.helper.make_node("Cast", [name + "__f16"], [name], to=onnx.TensorProto.FLOAT, name=name + "__cast"))
-    nodes = casts + list(proto.graph.node)  # casts first keeps the graph topologically sorted
-    del proto.graph.node[:]
-    proto.graph.node.extend(nodes)
-
-
-def save_arrays(folder: Path, arrays: dict[str, np.ndarray]) -> None:
-    folder.mkdir(parents=True, exist_ok=True)
-    for name, a in arrays.items():
-        np.save(folder / f"{name}.npy", a)
-
-
-def tensor_spec(name: str, shape: list, dtype: str, meaning: str) -> dict:
-    return {"name": name, "shape": shape, "dtype": dtype, "meaning": meaning}
 
 
 def denoiser_io(cfg: ModelConfig, layout: Layout) -> tuple[list[dict], list[dict]]:
@@ -205,13 +117,11 @@ def export(run: Path, policy: str, layout_names: list[str], data: Path, out: Pat
     ckpt = torch.load(ckpt_path, map_location="cpu", weights_only=False)
     ae = load_autoencoder(run, torch.device("cpu"))
     if decoder_from is not None:
-        from .sharpen import decoder_from as load_decoder
 
         load_decoder(decoder_from, ae)
     model = CDiT(cfg.cdit)
     model.load_state_dict(ckpt["ema"])
     if "distilled" in ckpt:
-        from .distill import EpsFromV
 
         model = EpsFromV(model, Schedule(cfg.diffusion).alphas_cumprod)
     log = [json.loads(line) for line in (run / "log.jsonl").read_text().splitlines()] if (run / "log.jsonl").exists() else []
@@ -248,7 +158,6 @@ def export(run: Path, policy: str, layout_names: list[str], data: Path, out: Pat
 def keep_fusion_head(source: Path, out: Path) -> None:
     """Copies `source`'s fusion head (graph, references, manifest entry) into
     the model folder `out`: a distilled student keeps its teacher's head."""
-    import shutil
 
     theirs = json.loads((source / "manifest.json").read_text())
     if "fusion" not in theirs:
@@ -512,8 +421,8 @@ def measure(cfg: ModelConfig, ae, model: CDiT, data: Path, latent_dir: Path, lay
                         best, best_t = g[0][i, s], g[1][i, s]
             last.append(best)
         copy = ae.decoder(torch.from_numpy(np.stack(last)) / ae.scale)
-        entry[f"next_frame_psnr_db_{len(grid)}_steps" if grid else "next_frame_psnr_db_20_steps"] = round(psnr(pred, truth), 2)
-        entry["copy_last_frame_psnr_db"] = round(psnr(copy, truth), 2)
+        entry[f"next_frame_psnr_db_{len(grid)}_steps" if grid else "next_frame_psnr_db_20_steps"] = round(psnr(to_u8(pred), to_u8(truth)), 2)
+        entry["copy_last_frame_psnr_db"] = round(psnr(to_u8(copy), to_u8(truth)), 2)
         out[name] = entry
     return out
 

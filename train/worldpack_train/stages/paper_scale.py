@@ -17,9 +17,9 @@ from pathlib import Path
 
 import torch
 
-from .autoencoder import build as build_autoencoder
-from .cdit import CDiT
-from .config import AutoencoderConfig, CDiTConfig, ModelConfig
+from ..core.autoencoder import build as build_autoencoder
+from ..core.cdit import CDiT
+from ..core.config import AutoencoderConfig, CDiTConfig, ModelConfig
 from .export import write_model
 
 SIZES = {

@@ -6,8 +6,10 @@ from __future__ import annotations
 
 import json
 import math
-import sys
 from pathlib import Path
+import sys
+
+from ..core.data import PlannedLatents
 
 FORMAT = "worldpack-model/1"
 
@@ -101,7 +103,6 @@ def set_warp_frames(model: Path, frames: int) -> None:
     denoiser and the head see one fused image and where it landed, so more
     frames land more of memory's own pixels and leave fewer holes. The
     manifest keeps the training count beside the served one."""
-    from .data import PlannedLatents
 
     path = model / "manifest.json"
     if not path.is_file():

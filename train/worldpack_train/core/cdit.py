@@ -12,8 +12,8 @@ import math
 
 import numpy as np
 import torch
-import torch.nn.functional as F
 from torch import nn
+import torch.nn.functional as F
 
 from .config import ACTION_SCALE, CDiTConfig, side_factor
 
