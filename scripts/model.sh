@@ -1,8 +1,7 @@
 #!/usr/bin/env bash
-# Trains and exports the model (PyTorch). Never part of the test command.
-# Sets up .venv-train from train/requirements.txt on first use, then
-# runs `python -m worldpack_train "$@"` (stages: train-ae, encode, train, export).
-# See docs/model.md for the whole recipe.
+# One stage of the trainer by hand (`python -m worldpack_train STAGE ...`: train-ae,
+# encode, train, distill, export, fusion-*, ...), for research; `./scripts/train.sh`
+# runs the whole recipe. Sets up .venv-train from train/requirements.txt on first use.
 set -euo pipefail
 root="$(cd "$(dirname "$0")/.." && pwd)"
 if [ ! -x "$root/.venv-train/bin/python" ]; then

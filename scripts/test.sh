@@ -15,6 +15,15 @@ echo "==> installing Python test requirements"
 # The trainer's torch-free modules (metrics, the manifest, the data reader), without torch.
 .venv/bin/python -m pip install --disable-pip-version-check -q --no-deps -e train
 
+if [ ! -x .venv-train/bin/python ]; then
+  # The trainer's own venv: torch (PyPI's wheel, CUDA build, runs on the CPU), for
+  # tests/test_train_command.py, which runs `worldpack train` end to end on a tiny dataset.
+  echo "==> creating the trainer's venv in .venv-train (torch is large: a few minutes)"
+  python3 -m venv .venv-train
+fi
+.venv-train/bin/python -m pip install --disable-pip-version-check -q -r train/requirements.txt
+.venv-train/bin/python -m pip install --disable-pip-version-check -q --no-deps -e train
+
 if [ ! -x .venv-triton/bin/python ]; then
   # The Triton tests start PyPI's tritonserver (nvidia-pytriton). Its Python-backend
   # stub links Debian's libpython3.11, so this venv is made with Debian's python3.11;

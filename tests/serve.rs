@@ -243,7 +243,7 @@ fn full_queues_answer_429_and_503_and_lose_nothing() {
 #[test]
 fn overlay_warp_needs_a_geometry_model() {
     let out = Command::new(env!("CARGO_BIN_EXE_worldpack"))
-        .args(["serve", "--addr", "127.0.0.1:0", "--store", temp_store("overlay").to_str().unwrap(), "--overlay-warp"])
+        .args(["serve", "--model", "fixtures/small", "--addr", "127.0.0.1:0", "--store", temp_store("overlay").to_str().unwrap(), "--overlay-warp"])
         .output()
         .unwrap();
     assert!(!out.status.success());

@@ -44,7 +44,7 @@ def server(request, tmp_path_factory):
     if request.param == "tokens":
         env["WORLDPACK_TOKENS"] = f"tester:{TOKEN}"
         flags = ["--rate-per-tenant", "100000"]
-    proc = subprocess.Popen([BIN, "serve", "--store", str(store), "--addr", f"127.0.0.1:{port}", "--steps", "2", *flags],
+    proc = subprocess.Popen([BIN, "serve", "--model", "fixtures/small", "--store", str(store), "--addr", f"127.0.0.1:{port}", "--steps", "2", *flags],
                             cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=env)
     url = f"http://127.0.0.1:{port}"
     headers = {"authorization": f"Bearer {TOKEN}"} if request.param == "tokens" else {}

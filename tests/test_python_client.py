@@ -22,6 +22,9 @@ BIN = os.environ.get("WORLDPACK_BIN", str(ROOT / "target" / "release" / "worldpa
 
 
 def start(tmp, *flags, env=None):
+    """A server on a free port; the small test model unless `flags` name another."""
+    if "--model" not in flags:
+        flags = ("--model", "fixtures/small", *flags)
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]

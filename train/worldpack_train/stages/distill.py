@@ -112,6 +112,124 @@ def teacher_segment(eps_fn, alpha_bar: torch.Tensor, x: torch.Tensor, start: tor
     return x
 
 
+def distillation_record(grid, teacher_path, teacher_step, teacher_steps, edge_weight, adversarial, in_pixels, judge_noise,
+                        judge_lr, adversarial_weight, adversarial_start, origin, adversarial_cap, judged, judge_holes,
+                        decoder_from) -> dict:
+    """What the manifest says of how the student was made."""
+    record = {"method": "progressive distillation target (Salimans & Ho 2022), one round", "timesteps": grid,
+              "teacher": str(teacher_path), "teacher_steps": teacher_step, "teacher_steps_per_segment": teacher_steps,
+              "prediction": "v (exported as epsilon)"}
+    if edge_weight > 0:
+        record["edge_weight"] = edge_weight
+    if adversarial:
+        record["adversarial"] = {"method": "Adversarial Diffusion Distillation's adversarial term (Sauer et al. 2023): "
+                                           "conditional PatchGAN on decoded frames, hinge loss, VQGAN's adaptive weight"
+                                 if in_pixels else
+                                 "Latent Adversarial Diffusion Distillation (Sauer et al. 2024): the frozen teacher's "
+                                 "block features of re-noised latents, a head per block, hinge loss, VQGAN's adaptive weight",
+                                 "judge_noise": None if in_pixels else judge_noise, "judge_lr": judge_lr,
+                                 "weight": adversarial_weight, "start": adversarial_start, "from_step": origin,
+                                 "cap": adversarial_cap, "judged_scale": judged, "judged_by_holes": judge_holes,
+                                 "decoder": str(decoder_from) if decoder_from else "the run's"}
+    return record
+
+
+@torch.no_grad()
+def judged_scale(source, autoencoder, batch: int, dev) -> tuple[float, float]:
+    """The real frames' mean and spread, from one batch of them, fixed for the run: spectral
+    normalisation bounds how far the discriminator's logits move per unit of input, so on
+    dark, low-contrast frames (Doom's: std 0.19 in [-1, 1]) real and generated patches lie
+    too close for its hinge margin; standardised, they lie as far apart as on any world."""
+    probe = torch.from_numpy(source.batch(np.random.default_rng(5000), batch).target).to(dev)
+    frames = autoencoder.decoder(probe / autoencoder.scale)
+    print(f"the discriminator judges frames standardised by mean {frames.mean().item():.3f}, std {frames.std().item():.3f}")
+    return frames.mean().item(), frames.std().item()
+
+
+def judge_for(in_pixels, disc, judged, warped, landed, image, x0, x0_student, autoencoder, teacher, judge_noise, alpha_bar,
+              action, rel_time, groups, rates, warp_in):
+    """What the discriminator sees of a batch: the generated sample, a thunk for the real one,
+    and the function that judges either. Pixels: decoded frames beside the warp; teacher:
+    latents re-noised alike (one level and one noise per sample) through the frozen teacher."""
+    if in_pixels:
+        mean, std = judged or (0.0, 1.0)
+        scaled = lambda frame: (frame - mean) / std
+        condition = torch.cat([scaled(warped.permute(0, 3, 1, 2).float() / 127.5 - 1.0) * landed[:, None],
+                               landed[:, None].float()], dim=1)
+        return image, lambda: autoencoder.decoder(x0 / autoencoder.scale), \
+            lambda frame: disc(torch.cat([scaled(frame), condition], dim=1))
+    t_judge = torch.randint(0, judge_noise, (len(x0),), device=x0.device)
+    ab_judge = alpha_bar[t_judge].view(-1, 1, 1, 1)
+    noise_judge = torch.randn_like(x0)
+
+    def judge_of(latent):
+        features = []
+        teacher(ab_judge.sqrt() * latent + (1 - ab_judge).sqrt() * noise_judge, t_judge.float(), action,
+                rel_time, groups, rates=rates, warp=warp_in, features=features)
+        return disc(features)
+
+    return x0_student, lambda: x0, judge_of
+
+
+def check_judge(adversarial: bool, cfg, teacher_path: Path, judge: str, standardise_judged: bool, judge_noise: int) -> None:
+    if adversarial and not cfg.cdit.warp:
+        raise SystemExit("--adversarial-weight: the discriminator judges a frame beside its warp; "
+                         f"{teacher_path} is not a geometry model (no warp input)")
+    if judge not in ("pixels", "teacher"):
+        raise SystemExit(f"--judge: pixels or teacher, got {judge!r}")
+    if judge == "teacher" and standardise_judged:
+        raise SystemExit("--standardise-judged: the teacher judges latents, which are already standardised")
+    if not 0 < judge_noise <= cfg.diffusion.timesteps:
+        raise SystemExit(f"--judge-noise: a timestep in 1..{cfg.diffusion.timesteps}, got {judge_noise}")
+
+
+def resume_student(ckpt: Path, grid: list[int], student, ema, opt, disc, opt_d, standardise_judged: bool,
+                   judge: str) -> tuple[int, int, tuple | None]:
+    """The student, its optimiser and, when it judged the same inputs, its discriminator from
+    a checkpoint: the step, the step the adversarial fine-tune began at, the judged scale."""
+    dev = next(student.parameters()).device
+    adversarial = disc is not None
+    saved = torch.load(ckpt, map_location=dev, weights_only=False)
+    if saved["distilled"]["timesteps"] != grid:
+        raise SystemExit(f"--grid: {ckpt} was distilled for {saved['distilled']['timesteps']}, not {grid}")
+    # A checkpoint moved between machines may carry only its EMA weights.
+    student.load_state_dict(saved.get("model", saved["ema"]))
+    ema.load_state_dict(saved["ema"])
+    load_optimiser(opt, saved, ckpt)
+    step = saved["step"]
+    origin = saved.get("adversarial_origin", step)
+    judged = saved.get("judged_scale")
+    kind = saved.get("judge_kind", "pixels")
+    if adversarial and "disc" in saved and (judged is not None) == standardise_judged and kind == judge:
+        disc.load_state_dict(saved["disc"])
+        load_optimiser(opt_d, saved, ckpt, key="opt_d")  # at --judge-lr, not the saved rate
+    elif adversarial and "disc" in saved:
+        # A discriminator trained on other inputs would judge these by the wrong measure.
+        what = f"{'standardised' if judged else 'raw'} frames" if kind == "pixels" else "latents through the teacher"
+        print(f"a fresh discriminator: {ckpt.name}'s judged {what}")
+        judged, origin = None, step
+    print(f"resuming {ckpt.name} at step {step}")
+    return step, origin, judged
+
+
+def clean_target(target_state: torch.Tensor, x_t: torch.Tensor, ab: torch.Tensor, ab_end: torch.Tensor) -> torch.Tensor:
+    """The clean frame that one DDIM step from x_t must predict to land on the teacher's state (eq. 8)."""
+    ratio = ((1 - ab_end) / (1 - ab)).sqrt()
+    return (target_state - ratio * x_t) / (ab_end.sqrt() - ratio * ab.sqrt())
+
+
+def discriminator_step(judge_of, judged_real, judged_fake: torch.Tensor, weigh, opt_d) -> torch.Tensor:
+    """One hinge step of the discriminator on a real and a generated batch; its loss."""
+    with torch.no_grad():
+        real = judged_real()
+    real_logits = judge_of(real)
+    d_loss = hinge_discriminator(real_logits, judge_of(judged_fake.detach()), weigh(real_logits))
+    opt_d.zero_grad(set_to_none=True)
+    d_loss.backward()
+    opt_d.step()
+    return d_loss
+
+
 def distill(data: Path, run: Path, policy: str, grid_text: str, teacher_steps: int, steps: int, batch: int, lr: float,
             ema_decay: float, device: str, minutes: float | None, edge_weight: float = 0.0,
             adversarial_weight: float = 0.0, adversarial_start: int = 0, decoder_from: Path | None = None,
@@ -135,15 +253,7 @@ def distill(data: Path, run: Path, policy: str, grid_text: str, teacher_steps: i
     ema = copy.deepcopy(teacher).requires_grad_(False)
     opt = torch.optim.AdamW(student.parameters(), lr=lr, weight_decay=0.0)
     adversarial = adversarial_weight > 0
-    if adversarial and not cfg.cdit.warp:
-        raise SystemExit("--adversarial-weight: the discriminator judges a frame beside its warp; "
-                         f"{teacher_path} is not a geometry model (no warp input)")
-    if judge not in ("pixels", "teacher"):
-        raise SystemExit(f"--judge: pixels or teacher, got {judge!r}")
-    if judge == "teacher" and standardise_judged:
-        raise SystemExit("--standardise-judged: the teacher judges latents, which are already standardised")
-    if not 0 < judge_noise <= cfg.diffusion.timesteps:
-        raise SystemExit(f"--judge-noise: a timestep in 1..{cfg.diffusion.timesteps}, got {judge_noise}")
+    check_judge(adversarial, cfg, teacher_path, judge, standardise_judged, judge_noise)
     in_pixels = adversarial and judge == "pixels"
     # Pixels: conditional on the warp, the frame (3), the warped image (3) and where it landed (1).
     disc = None if not adversarial else (PatchDiscriminator(channels=7) if in_pixels else
@@ -155,26 +265,7 @@ def distill(data: Path, run: Path, policy: str, grid_text: str, teacher_steps: i
     step = origin = 0  # origin: the step this adversarial fine-tune began at (`adversarial_start` counts from it)
     judged = None  # (mean, std) the discriminator's inputs are standardised by, when they are
     if ckpt.exists():
-        saved = torch.load(ckpt, map_location=dev, weights_only=False)
-        if saved["distilled"]["timesteps"] != grid:
-            raise SystemExit(f"--grid: {ckpt} was distilled for {saved['distilled']['timesteps']}, not {grid}")
-        # A checkpoint moved between machines may carry only its EMA weights.
-        student.load_state_dict(saved.get("model", saved["ema"]))
-        ema.load_state_dict(saved["ema"])
-        load_optimiser(opt, saved, ckpt)
-        step = saved["step"]
-        origin = saved.get("adversarial_origin", step)
-        judged = saved.get("judged_scale")
-        kind = saved.get("judge_kind", "pixels")
-        if adversarial and "disc" in saved and (judged is not None) == standardise_judged and kind == judge:
-            disc.load_state_dict(saved["disc"])
-            load_optimiser(opt_d, saved, ckpt, key="opt_d")  # at --judge-lr, not the saved rate
-        elif adversarial and "disc" in saved:
-            # A discriminator trained on other inputs would judge these by the wrong measure.
-            what = f"{'standardised' if judged else 'raw'} frames" if kind == "pixels" else "latents through the teacher"
-            print(f"a fresh discriminator: {ckpt.name}'s judged {what}")
-            judged, origin = None, step
-        print(f"resuming {ckpt.name} at step {step}")
+        step, origin, judged = resume_student(ckpt, grid, student, ema, opt, disc, opt_d, standardise_judged, judge)
 
     layout = LAYOUTS[policy]
     source = wdata.PlannedLatents(data, run / "latents", policy, layout, memory_focus, warp=cfg.cdit.warp)
@@ -184,36 +275,16 @@ def distill(data: Path, run: Path, policy: str, grid_text: str, teacher_steps: i
 
         load_decoder(decoder_from, autoencoder)
     if adversarial and standardise_judged and judged is None:
-        # The real frames' mean and spread, from one batch of them, fixed for the run: spectral
-        # normalisation bounds how far the discriminator's logits move per unit of input, so on
-        # dark, low-contrast frames (Doom's: std 0.19 in [-1, 1]) real and generated patches
-        # lie too close for its hinge margin; standardised, they lie as far apart as on any world.
-        with torch.no_grad():
-            probe = torch.from_numpy(source.batch(np.random.default_rng(5000), batch).target).to(dev)
-            frames = autoencoder.decoder(probe / autoencoder.scale)
-        judged = (frames.mean().item(), frames.std().item())
-        print(f"the discriminator judges frames standardised by mean {judged[0]:.3f}, std {judged[1]:.3f}")
+        judged = judged_scale(source, autoencoder, batch, dev)
     alpha_bar = torch.tensor(Schedule(cfg.diffusion).alphas_cumprod, dtype=torch.float32, device=dev)
     augment = ContextAugmenter(recipe, source, layout.rates, alpha_bar, cfg.cdit.context_noise, 3000 + step, dev)
     rng = np.random.default_rng(4000 + step)
     torch.manual_seed(4000 + step)
     starts = torch.tensor(grid, device=dev)
     ends = torch.tensor(grid[1:] + [-1], device=dev)
-    record = {"method": "progressive distillation target (Salimans & Ho 2022), one round", "timesteps": grid,
-              "teacher": str(teacher_path), "teacher_steps": state["step"], "teacher_steps_per_segment": teacher_steps,
-              "prediction": "v (exported as epsilon)"}
-    if edge_weight > 0:
-        record["edge_weight"] = edge_weight
-    if adversarial:
-        record["adversarial"] = {"method": "Adversarial Diffusion Distillation's adversarial term (Sauer et al. 2023): "
-                                           "conditional PatchGAN on decoded frames, hinge loss, VQGAN's adaptive weight"
-                                 if in_pixels else
-                                 "Latent Adversarial Diffusion Distillation (Sauer et al. 2024): the frozen teacher's "
-                                 "block features of re-noised latents, a head per block, hinge loss, VQGAN's adaptive weight",
-                                 "judge_noise": None if in_pixels else judge_noise, "judge_lr": judge_lr or lr,
-                                 "weight": adversarial_weight, "start": adversarial_start, "from_step": origin,
-                                 "cap": adversarial_cap, "judged_scale": judged, "judged_by_holes": judge_holes,
-                                 "decoder": str(decoder_from) if decoder_from else "the run's"}
+    record = distillation_record(grid, teacher_path, state["step"], teacher_steps, edge_weight, adversarial, in_pixels,
+                                 judge_noise, judge_lr or lr, adversarial_weight, adversarial_start, origin, adversarial_cap,
+                                 judged, judge_holes, decoder_from)
     extra = lambda: dict(disc=disc.state_dict(), opt_d=opt_d.state_dict(), adversarial_origin=origin,
                          judged_scale=judged, judge_kind=judge) if adversarial else {}
     checkpoint = lambda: save(ckpt, model=student.state_dict(), ema=ema.state_dict(), opt=opt.state_dict(), step=step,
@@ -236,10 +307,7 @@ def distill(data: Path, run: Path, policy: str, grid_text: str, teacher_steps: i
         ab_end = torch.where(end >= 0, alpha_bar[end.clamp_min(0)], 1.0).view(-1, 1, 1, 1)
         x_t = ab.sqrt() * x0 + (1 - ab).sqrt() * torch.randn_like(x0)
         teacher_eps = lambda x, tt: teacher(x, tt, action, rel_time, groups, rates=layout.rates, warp=warp_in)
-        target_state = teacher_segment(teacher_eps, alpha_bar, x_t, t, end, teacher_steps)
-        # The clean frame that one DDIM step from x_t must predict to land on target_state (eq. 8).
-        ratio = ((1 - ab_end) / (1 - ab)).sqrt()
-        x0_target = (target_state - ratio * x_t) / (ab_end.sqrt() - ratio * ab.sqrt())
+        x0_target = clean_target(teacher_segment(teacher_eps, alpha_bar, x_t, t, end, teacher_steps), x_t, ab, ab_end)
         v = student(x_t, t.float(), action, rel_time, groups, rates=layout.rates, warp=warp_in)
         x0_student = ab.sqrt() * x_t - (1 - ab).sqrt() * v
         loss = F.mse_loss(x0_student, x0_target)
@@ -249,25 +317,10 @@ def distill(data: Path, run: Path, policy: str, grid_text: str, teacher_steps: i
                 image_target = autoencoder.decoder(x0_target / autoencoder.scale)
             loss = loss + edge_weight * gradient_difference(image, image_target)
         d_loss = weight = torch.tensor(0.0)
-        if in_pixels:
-            mean, std = judged or (0.0, 1.0)
-            scaled = lambda image: (image - mean) / std
-            condition = torch.cat([scaled(warped.permute(0, 3, 1, 2).float() / 127.5 - 1.0) * landed[:, None],
-                                   landed[:, None].float()], dim=1)
-            judged_fake, judged_real = image, lambda: autoencoder.decoder(x0 / autoencoder.scale)
-            judge_of = lambda frame: disc(torch.cat([scaled(frame), condition], dim=1))
-        elif adversarial:
-            # Real and generated latents re-noised alike (one level and one noise per sample).
-            t_judge = torch.randint(0, judge_noise, (batch,), device=dev)
-            ab_judge = alpha_bar[t_judge].view(-1, 1, 1, 1)
-            noise_judge = torch.randn_like(x0)
-            judged_fake, judged_real = x0_student, lambda: x0
-
-            def judge_of(latent):
-                features = []
-                teacher(ab_judge.sqrt() * latent + (1 - ab_judge).sqrt() * noise_judge, t_judge.float(), action,
-                        rel_time, groups, rates=layout.rates, warp=warp_in, features=features)
-                return disc(features)
+        if adversarial:
+            judged_fake, judged_real, judge_of = judge_for(in_pixels, disc, judged, warped, landed, image, x0, x0_student,
+                                                           autoencoder, teacher, judge_noise, alpha_bar, action, rel_time,
+                                                           groups, layout.rates, warp_in)
         if adversarial:
             # With judge_holes, each patch counts by its share of the warp's holes (a floor keeps the rest in play).
             weigh = lambda logits: (F.adaptive_avg_pool2d(1.0 - landed[:, None].float(), logits.shape[-2:]) + 0.05
@@ -281,13 +334,7 @@ def distill(data: Path, run: Path, policy: str, grid_text: str, teacher_steps: i
                 loss = loss + weight * g_adv
         optimise(student, ema, opt, loss, ema_decay)
         if adversarial:
-            with torch.no_grad():
-                real = judged_real()
-            real_logits = judge_of(real)
-            d_loss = hinge_discriminator(real_logits, judge_of(judged_fake.detach()), weigh(real_logits))
-            opt_d.zero_grad(set_to_none=True)
-            d_loss.backward()
-            opt_d.step()
+            d_loss = discriminator_step(judge_of, judged_real, judged_fake, weigh, opt_d)
         step += 1
         seen += batch
         bar.update(1)

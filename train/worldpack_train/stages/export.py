@@ -188,8 +188,29 @@ def write_model(cfg: ModelConfig, ae, model: CDiT, layout_names: list[str], data
     out.mkdir(parents=True, exist_ok=True)
     ref = out / "reference"
 
-    # Latents of the reference suite (the test split), encoded now so the export needs no cache.
     latent_dir = out / ".latents-tmp"
+    cache_latents(cfg, ae, data, latent_dir)
+    write_autoencoder(ae, data, out, half)
+    rng = np.random.default_rng(7)
+    layouts_json, trace_inputs = write_denoisers(cfg, ae, model, layout_names, data, latent_dir, out, half, rng)
+    sched = Schedule(cfg.diffusion)
+    grid = distilled["timesteps"] if distilled else None
+    traces = write_traces(sched, trace_inputs, grid, ref, rng)
+    if cfg.cdit.warp:
+        save_arrays(ref / "warp", warp_cases((data, *warp_data), ae))
+    measured = measure(cfg, ae, model, data, latent_dir, layout_names, sched, grid) if metrics else None
+    for f in latent_dir.iterdir():
+        f.unlink()
+    latent_dir.rmdir()
+
+    manifest = manifest_of(cfg, ae, model, data, out.name, created_by, half, layouts_json, generated_level, distilled,
+                           training, measured, tolerance, layout_names, traces)
+    (out / "manifest.json").write_text(json.dumps(manifest, indent=2))
+    print(f"exported {out} in {time.time() - started:.1f} s" + (": " + json.dumps(measured) if measured else ""))
+
+
+def cache_latents(cfg: ModelConfig, ae, data: Path, latent_dir: Path) -> None:
+    """Latents of the reference suite (the test split), encoded now so the export needs no cache."""
     latent_dir.mkdir(exist_ok=True)
     with torch.no_grad():
         for d in wdata.trajectories(data):
@@ -197,8 +218,11 @@ def write_model(cfg: ModelConfig, ae, model: CDiT, layout_names: list[str], data
             z = torch.cat([ae.encoder(c) for c in rgb.split(encode_chunk(cfg))]) * ae.scale
             np.save(latent_dir / f"{d.name}.npy", z.numpy().astype(np.float16))
 
-    # Autoencoder graphs and references.
-    a = cfg.autoencoder
+
+
+def write_autoencoder(ae, data: Path, out: Path, half: bool) -> None:
+    """The encoder and decoder graphs and their references."""
+    ref = out / "reference"
     rgb_ref = np.stack([np.load(wdata.trajectories(data)[0] / "rgb.npy")[k] for k in (0, 7)])
     image = torch.from_numpy(wdata.to_unit_range(rgb_ref))
     with torch.no_grad():
@@ -215,9 +239,14 @@ def write_model(cfg: ModelConfig, ae, model: CDiT, layout_names: list[str], data
     save_arrays(ref / "encoder", {"image": image.numpy(), "latent": raw.numpy()})
     save_arrays(ref / "decoder", {"latent": raw.numpy(), "image": decoded.numpy()})
 
-    # Denoiser graphs: one per layout, from the same weights.
+
+
+def write_denoisers(cfg: ModelConfig, ae, model: CDiT, layout_names: list[str], data: Path, latent_dir: Path, out: Path,
+                    half: bool, rng: np.random.Generator) -> tuple[list[dict], tuple]:
+    """One denoiser graph per layout, from the same weights, with references; the layouts'
+    manifest entries and the inputs of the first, which the sampling traces condition on."""
+    ref = out / "reference"
     denoisers, layouts_json, trace_inputs = {}, [], None
-    rng = np.random.default_rng(7)
     for name in layout_names:
         layout = LAYOUTS[name]
         missing = set(layout.rates) - set(cfg.cdit.rates)
@@ -274,8 +303,11 @@ def write_model(cfg: ModelConfig, ae, model: CDiT, layout_names: list[str], data
     for name, proto in denoisers.items():
         onnx.save(proto, out / f"denoiser_{name}.onnx")
 
-    # Sampling traces: the reference sampler with injected noise, PyTorch as the denoiser.
-    sched = Schedule(cfg.diffusion)
+    return layouts_json, trace_inputs
+
+
+def write_traces(sched: Schedule, trace_inputs: tuple, grid: list[int] | None, ref: Path, rng: np.random.Generator) -> dict:
+    """Sampling traces: the reference sampler with injected noise, PyTorch as the denoiser."""
     trace_layout, graph, names, arrays = trace_inputs
 
     def eps_fn(x, t):
@@ -284,7 +316,6 @@ def write_model(cfg: ModelConfig, ae, model: CDiT, layout_names: list[str], data
             return graph(*(torch.from_numpy(feed[n]) for n in names)).numpy()
 
     # A distilled model is sampled on its own grid with DDIM only.
-    grid = distilled["timesteps"] if distilled else None
     traces = {}
     for method in ("ddim",) if grid else ("ancestral", "ddim"):
         steps = len(grid) if grid else TRACE_STEPS
@@ -295,17 +326,17 @@ def write_model(cfg: ModelConfig, ae, model: CDiT, layout_names: list[str], data
         traces[method] = {"folder": f"reference/trace_{method}", "layout": trace_layout, "steps": steps,
                           "eta": 0.0, "conditioning": f"reference/denoiser_{trace_layout} (all inputs but x_t and timestep)"}
 
-    if cfg.cdit.warp:
-        save_arrays(ref / "warp", warp_cases((data, *warp_data), ae))
-    measured = measure(cfg, ae, model, data, latent_dir, layout_names, sched, grid) if metrics else None
-    for f in latent_dir.iterdir():
-        f.unlink()
-    latent_dir.rmdir()
+    return traces
 
+
+def manifest_of(cfg: ModelConfig, ae, model: CDiT, data: Path, name: str, created_by: str, half: bool, layouts_json: list[dict],
+                generated_level: float, distilled: dict | None, training: dict | None, measured: dict | None,
+                tolerance: dict, layout_names: list[str], traces: dict) -> dict:
+    a = cfg.autoencoder
     meta0 = json.loads((wdata.trajectories(data)[0] / "meta.json").read_text())
-    manifest = {
+    return {
         "format": MANIFEST_FORMAT,
-        "name": out.name,
+        "name": name,
         "created_by": created_by,
         "config": cfg.to_json(),
         "image": {"width": a.image_size, "height": a.image_size, "channels": 3, "layout": "NCHW, RGB",
@@ -370,8 +401,6 @@ def write_model(cfg: ModelConfig, ae, model: CDiT, layout_names: list[str], data
             "traces": traces,
         },
     }
-    (out / "manifest.json").write_text(json.dumps(manifest, indent=2))
-    print(f"exported {out} in {time.time() - started:.1f} s" + (": " + json.dumps(measured) if measured else ""))
 
 
 def encode_chunk(cfg: ModelConfig) -> int:

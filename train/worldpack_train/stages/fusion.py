@@ -29,10 +29,12 @@ import json
 import math
 from pathlib import Path
 import shutil
+import tempfile
 import time
 
 import numpy as np
 import onnx
+from onnx import numpy_helper
 import torch
 from torch import nn
 import torch.nn.functional as F
@@ -181,8 +183,6 @@ def head_of(model: Path, part: str = "kept") -> tuple[FusionHead, dict]:
     fusion.onnx (the initializers keep the PyTorch names), and its manifest
     entry as a single head's. Of a head pair, the head `part` ("shown",
     "kept" or "holes"), with the model and training the pair records for it."""
-    from onnx import numpy_helper
-
     manifest = json.loads((model / "manifest.json").read_text())
     spec = manifest.get("fusion")
     if spec is None:
@@ -230,6 +230,60 @@ def load_examples(folder: Path):
     return rgb("predicted"), rgb("reference"), landed, rgb("truth")
 
 
+def examples_of(data: list[Path]):
+    """Every folder's examples, the last tenth of each (its suite's last trajectories) held
+    out at the end: predicted, reference, landed, truth, and where the held-out part starts."""
+    folders = [load_examples(d) for d in data]
+    fit = [[x[: len(x) - max(1, len(x) // 10)] for x in f] for f in folders]
+    held = [[x[len(x) - max(1, len(x) // 10):] for x in f] for f in folders]
+    pred, ref, landed, truth = (torch.cat([f[i] for f in fit] + [h[i] for h in held]) for i in range(4))
+    return pred, ref, landed, truth, sum(len(f[0]) for f in fit)
+
+
+def head_config(width, head, data, n, cut, edge_weight, edge_landed, adversarial_weight, adversarial_start, texture_weight,
+                landed_weight, init_from) -> dict:
+    """What a run was trained with: a resumed run must match it."""
+    config = {"width": width, "dilations": list(head.dilations), "data": [str(d) for d in data], "examples": n, "held_out": n - cut,
+              "edge_weight": edge_weight, "edge_landed": edge_landed}
+    if adversarial_weight > 0:
+        config |= {"adversarial_weight": adversarial_weight, "adversarial_start": adversarial_start}
+    if texture_weight > 0:
+        config["texture_weight"] = texture_weight
+    if landed_weight != 1:
+        config["landed_weight"] = landed_weight
+    if init_from is not None:
+        config["init_from"] = str(init_from)
+    return config
+
+
+def score_held_out(head, pred, ref, landed, truth, cut: int) -> dict:
+    """PSNR and sharpness of the head's frames on the held-out examples, beside its inputs'."""
+    n = len(pred)
+    with torch.no_grad():
+        out = torch.cat([head(pred[i:i + 256], ref[i:i + 256], landed[i:i + 256]) for i in range(cut, n, 256)])
+    t, holes = to_u8(truth[cut:]), (landed[cut:, 0] < 0.5).cpu().numpy()
+    return {"fused": psnr(to_u8(out), t), "decoder": psnr(to_u8(pred[cut:]), t), "reference": psnr(to_u8(ref[cut:]), t),
+            "average": psnr(to_u8((pred[cut:] + ref[cut:]) / 2), t), "sharpness": sharpness_ratio(to_u8(out), t),
+            "holes_sharpness": sharpness_ratio(to_u8(out), t, holes, min_pairs=64),
+            "decoder_sharpness": sharpness_ratio(to_u8(pred[cut:]), t)}
+
+
+def regression_loss(out, t, m, landed_weight: float, edge_weight: float, edge_landed: float, texture_weight: float):
+    """MSE (weighted by `landed_weight` where the warp landed), the gradient difference
+    term and, in the holes, the detail energy term."""
+    if landed_weight == 1:
+        loss = F.mse_loss(out, t)
+    else:
+        weight_map = 1 - (1 - landed_weight) * m
+        loss = ((out - t).pow(2) * weight_map).sum() / (weight_map.sum() * out.shape[1]).clamp(min=1e-6)
+    if edge_weight > 0:
+        where = None if edge_landed == 1 and landed_weight == 1 else (1 - (1 - edge_landed) * m) * (1 - (1 - landed_weight) * m)
+        loss = loss + edge_weight * gradient_difference(out, t, where)
+    if texture_weight > 0:
+        loss = loss + texture_weight * detail_energy_difference(out, t, 1 - m)
+    return loss
+
+
 def train(data: list[Path], run: Path, steps: int, batch: int, lr: float, minutes: float | None, width: int, seed: int = 0,
           edge_weight: float = 0.0, edge_landed: float = 1.0, adversarial_weight: float = 0.0,
           adversarial_start: int = 500, init_from: Path | None = None, texture_weight: float = 0.0,
@@ -263,12 +317,8 @@ def train(data: list[Path], run: Path, steps: int, batch: int, lr: float, minute
     if not texture_weight >= 0:
         raise SystemExit(f"--texture-weight: a weight of at least 0 (0: off); got {texture_weight}")
     run.mkdir(parents=True, exist_ok=True)
-    folders = [load_examples(d) for d in data]
-    fit = [[x[: len(x) - max(1, len(x) // 10)] for x in f] for f in folders]
-    held = [[x[len(x) - max(1, len(x) // 10):] for x in f] for f in folders]
-    pred, ref, landed, truth = (torch.cat([f[i] for f in fit] + [h[i] for h in held]) for i in range(4))
+    pred, ref, landed, truth, cut = examples_of(data)
     n = len(pred)
-    cut = sum(len(f[0]) for f in fit)
     torch.manual_seed(seed)
     head = FusionHead(width)
     adversarial = adversarial_weight > 0
@@ -285,16 +335,8 @@ def train(data: list[Path], run: Path, steps: int, batch: int, lr: float, minute
             raise SystemExit(f"--init-from: {init_from}'s head is {architecture(start)}, not {architecture(head)}")
         head.load_state_dict(start.state_dict())
         print(f"starting from the head of {init_from} (its step {saved['step']})")
-    config = {"width": width, "dilations": list(head.dilations), "data": [str(d) for d in data], "examples": n, "held_out": n - cut,
-              "edge_weight": edge_weight, "edge_landed": edge_landed}
-    if adversarial:
-        config |= {"adversarial_weight": adversarial_weight, "adversarial_start": adversarial_start}
-    if texture_weight > 0:
-        config["texture_weight"] = texture_weight
-    if landed_weight != 1:
-        config["landed_weight"] = landed_weight
-    if init_from is not None:
-        config["init_from"] = str(init_from)
+    config = head_config(width, head, data, n, cut, edge_weight, edge_landed, adversarial_weight, adversarial_start,
+                         texture_weight, landed_weight, init_from)
     if step:
         state = torch.load(ckpt, weights_only=False)
         if state["config"] != config:
@@ -307,15 +349,6 @@ def train(data: list[Path], run: Path, steps: int, batch: int, lr: float, minute
         extra = {"disc": disc.state_dict(), "opt_d": opt_d.state_dict()} if adversarial else {}
         torch.save({"head": head.state_dict(), "opt": opt.state_dict(), "step": step, "config": config, **extra}, ckpt)
 
-    def held_out() -> dict:
-        with torch.no_grad():
-            out = torch.cat([head(pred[i:i + 256], ref[i:i + 256], landed[i:i + 256]) for i in range(cut, n, 256)])
-        t, holes = to_u8(truth[cut:]), (landed[cut:, 0] < 0.5).cpu().numpy()
-        return {"fused": psnr(to_u8(out), t), "decoder": psnr(to_u8(pred[cut:]), t), "reference": psnr(to_u8(ref[cut:]), t),
-                "average": psnr(to_u8((pred[cut:] + ref[cut:]) / 2), t), "sharpness": sharpness_ratio(to_u8(out), t),
-                "holes_sharpness": sharpness_ratio(to_u8(out), t, holes, min_pairs=64),
-                "decoder_sharpness": sharpness_ratio(to_u8(pred[cut:]), t)}
-
     started, last_print = time.time(), time.time()
     gen = torch.Generator().manual_seed(seed + step)
     log = open(run / "fusion.log", "a")
@@ -327,16 +360,7 @@ def train(data: list[Path], run: Path, steps: int, batch: int, lr: float, minute
         for g in opt.param_groups:
             g["lr"] = lr * 0.5 * (1 + math.cos(math.pi * step / steps))
         out = head(p, r, m)
-        if landed_weight == 1:
-            loss = F.mse_loss(out, t)
-        else:
-            weight_map = 1 - (1 - landed_weight) * m
-            loss = ((out - t).pow(2) * weight_map).sum() / (weight_map.sum() * out.shape[1]).clamp(min=1e-6)
-        if edge_weight > 0:
-            where = None if edge_landed == 1 and landed_weight == 1 else (1 - (1 - edge_landed) * m) * (1 - (1 - landed_weight) * m)
-            loss = loss + edge_weight * gradient_difference(out, t, where)
-        if texture_weight > 0:
-            loss = loss + texture_weight * detail_energy_difference(out, t, 1 - m)
+        loss = regression_loss(out, t, m, landed_weight, edge_weight, edge_landed, texture_weight)
         weight = 0.0
         if adversarial and step >= adversarial_start:
             g_adv = -disc(torch.cat([out, r, m], 1)).mean()
@@ -366,7 +390,7 @@ def train(data: list[Path], run: Path, steps: int, batch: int, lr: float, minute
             print(f"stopping after {minutes} min at step {step}; run again to resume")
             break
     save()
-    scores = held_out()
+    scores = score_held_out(head, pred, ref, landed, truth, cut)
     line = "held out ({} examples): ".format(n - cut) + ", ".join(f"{k} {v:.2f}" for k, v in scores.items())
     print(line)
     log.write(line + "\n")
@@ -462,8 +486,6 @@ def pair(kept: Path, shown: Path, out: Path, data: Path | None = None, hole_fill
             raise SystemExit(f"{flag}: an odd window of at least 3 pixels, or 0 for none; got {k}")
     if not (warp_detail >= 0 and math.isfinite(warp_detail)):
         raise SystemExit(f"--warp-detail: a tolerance in 8-bit levels, at least 0 (0: off); got {warp_detail}")
-    import tempfile
-
     kept_head, kept_spec = head_of(kept, "kept")
     shown_head, shown_spec = head_of(shown, "shown")
     manifest = json.loads((kept / "manifest.json").read_text())
