@@ -10,7 +10,8 @@ if [ ! -x .venv/bin/python ]; then
   python3 -m venv .venv
 fi
 echo "==> installing Python test requirements"
-.venv/bin/python -m pip install --disable-pip-version-check -q -r tests/requirements.txt -r doom/requirements.txt
+.venv/bin/python -m pip install --disable-pip-version-check -q -r tests/requirements.txt -r doom/requirements.txt \
+  -r miniworld/requirements.txt
 .venv/bin/python -m pip install --disable-pip-version-check -q -e 'clients/python[gym]'
 # The trainer's torch-free modules (metrics, the manifest, the data reader), without torch.
 .venv/bin/python -m pip install --disable-pip-version-check -q --no-deps -e train
@@ -42,12 +43,26 @@ if ! command -v chromium >/dev/null; then
   fi
 fi
 
+# The MiniWorld tests (tests/test_miniworld.py) render headless through Mesa's EGL, and
+# once on Xvfb's display through xvfb-run: Debian's packages for both.
+missing=""
+for pkg in libegl1 libegl-mesa0 libgl1-mesa-dri libglu1-mesa xvfb; do
+  dpkg -s "$pkg" >/dev/null 2>&1 || missing="$missing $pkg"
+done
+if [ -n "$missing" ]; then
+  echo "==> installing Debian's$missing for the MiniWorld tests"
+  sudo=""; [ "$(id -u)" = 0 ] || sudo="sudo"
+  if ! { $sudo apt-get install -y -q $missing >/dev/null 2>&1 || { $sudo apt-get update -q >/dev/null && $sudo apt-get install -y -q $missing >/dev/null; }; }; then
+    echo "could not install$missing (apt-get as root or through sudo): tests/test_miniworld.py will fail and say so"
+  fi
+fi
+
 echo "==> cargo test (release: the overlap property tests sample millions of points)"
 cargo test --release --workspace
 echo "==> the criterion benches, each run once untimed (so that they keep building and running)"
 cargo test --release --workspace --bench '*'
 
-echo "==> pytest (OpenCV convention tests, ONNX parity, the Python client, the viewer in Chromium)"
+echo "==> pytest (OpenCV convention tests, ONNX parity, the Python client, the viewer in Chromium, Doom and MiniWorld)"
 # `cargo test` built target/release/worldpack for the integration tests, with the
 # workspace's features; `cargo build --bin` would build the tree again with others.
 [ -x target/release/worldpack ] || cargo test --release --workspace --no-run
