@@ -79,7 +79,9 @@ def test_serve_answers_a_step_with_the_model_it_made(trained, tmp_path):
     proc, url = start(tmp_path, "--model", str(out))
     try:
         health = json.load(urllib.request.urlopen(url + "/v1/health"))
-        assert health["model"] == out.name
+        manifest = json.loads((out / "manifest.json").read_text())
+        assert health["model"] == out.name and health["model_version"] == manifest["version"]
+        assert len(health["model_digest"]) == 16
         req = lambda path, body: json.load(urllib.request.urlopen(urllib.request.Request(
             url + path, json.dumps(body).encode(), {"content-type": "application/json"})))
         session = req("/v1/sessions", {"synthetic": {"seed": 3}})["session"]

@@ -2,7 +2,7 @@
 //! (docs/model.md lists every field). Parsed, then checked for consistency
 //! before any graph is opened.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use memory::Intrinsics;
 use serde::Deserialize;
@@ -34,6 +34,13 @@ pub struct Manifest {
     /// `image`). Absent: the decoded frame is the prediction.
     #[serde(default)]
     pub fusion: Option<GraphSpec>,
+    /// The model's version, as the trainer writes it (absent in older folders).
+    #[serde(default)]
+    pub version: Option<String>,
+    /// SHA-256 of the folder's manifest, graphs and weights (the first 16 hex digits), set
+    /// by [`Manifest::load`]: which exact model answered, whatever the folder is called.
+    #[serde(skip)]
+    pub digest: String,
 }
 
 #[derive(Clone, Debug, Deserialize)]
@@ -228,6 +235,22 @@ pub struct DistilledSpec {
     pub timesteps: Vec<usize>,
 }
 
+/// SHA-256 over the model files of `dir` (manifest.json, *.onnx, *.weights), by name in order.
+fn folder_digest(dir: &Path) -> std::io::Result<String> {
+    use sha2::{Digest, Sha256};
+    let mut files: Vec<PathBuf> = std::fs::read_dir(dir)?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.is_file() && (p.file_name().is_some_and(|n| n == "manifest.json") || p.extension().is_some_and(|x| x == "onnx" || x == "weights")))
+        .collect();
+    files.sort();
+    let mut hash = Sha256::new();
+    for f in files {
+        hash.update(f.file_name().unwrap_or_default().as_encoded_bytes());
+        hash.update(std::fs::read(&f)?);
+    }
+    Ok(hash.finalize().iter().take(8).map(|b| format!("{b:02x}")).collect())
+}
+
 impl Manifest {
     /// Reads and checks `dir/manifest.json`.
     pub fn load(dir: &Path) -> Result<Manifest, ModelError> {
@@ -238,8 +261,9 @@ impl Manifest {
         }
         let text = std::fs::read_to_string(&path)
             .map_err(|e| folder_error(format!("cannot read manifest.json ({e}); is this a folder written by `python -m worldpack_train export`?")))?;
-        let manifest: Manifest = serde_json::from_str(&text).map_err(|e| ModelError::manifest("manifest.json", e.to_string()))?;
+        let mut manifest: Manifest = serde_json::from_str(&text).map_err(|e| ModelError::manifest("manifest.json", e.to_string()))?;
         manifest.validate()?;
+        manifest.digest = folder_digest(dir).map_err(|e| folder_error(format!("cannot read its files to digest them: {e}")))?;
         Ok(manifest)
     }
 

@@ -446,6 +446,8 @@ def adversarial_stage(run: Run, minutes: float) -> dict | None:
 def card_stage(run: Run) -> dict:
     manifest = json.loads((run.out / "manifest.json").read_text())
     manifest["serving"] = run.settings["serving"]
+    # The day it was made and its settings: two models of one folder name are told apart by it.
+    manifest["version"] = f"{time.strftime('%Y-%m-%d')}+{wsettings.digest(run.settings)[:8]}"
     manifest["lineage"] = {"settings_digest": wsettings.digest(run.settings), "data": run.lineage["stages"]["check"]["data"],
                            "stages": {k: {"minutes": round(v["minutes"], 1), "status": v["status"]}
                                       for k, v in run.lineage["stages"].items()}}

@@ -17,6 +17,8 @@ pub async fn health(State(st): St) -> Json<Health> {
     Json(Health {
         status: "ok".into(),
         model: st.engine.model.as_ref().map(|m| m.manifest().name.clone()),
+        model_version: st.engine.model.as_ref().and_then(|m| m.manifest().version.clone()),
+        model_digest: st.engine.model.as_ref().map(|m| m.manifest().digest.clone()),
         provider: st.engine.model.as_ref().map(|m| m.provider().to_string()),
         sessions: st.sessions.read().unwrap().len(),
     })
@@ -45,7 +47,7 @@ pub async fn ready(State(st): St) -> Response {
     (StatusCode::SERVICE_UNAVAILABLE, [(axum::http::header::RETRY_AFTER, crate::error::RETRY_AFTER_S)], Json(body)).into_response()
 }
 
-#[utoipa::path(get, path = "/metrics", summary = "Prometheus counters: steps, observes, selects, sessions, step seconds, shared-store catch-ups",
+#[utoipa::path(get, path = "/metrics", summary = "Prometheus counters: steps, observes, selects, sessions, forks, step seconds, shared-store catch-ups",
     responses((status = 200, description = "Prometheus text exposition format", body = String, content_type = "text/plain")))]
 pub async fn metrics(State(st): St) -> Response {
     let m = &st.metrics;
@@ -58,6 +60,7 @@ pub async fn metrics(State(st): St) -> Response {
          # TYPE worldpack_observes_total counter\nworldpack_observes_total {}\n\
          # TYPE worldpack_selects_total counter\nworldpack_selects_total {}\n\
          # TYPE worldpack_sessions_created_total counter\nworldpack_sessions_created_total {}\n\
+         # TYPE worldpack_forks_total counter\nworldpack_forks_total {}\n\
          # TYPE worldpack_sessions_expired_total counter\nworldpack_sessions_expired_total {}\n\
          # TYPE worldpack_step_seconds_sum counter\nworldpack_step_seconds_sum {}\n\
          # TYPE worldpack_catch_ups_total counter\nworldpack_catch_ups_total {}\n\
@@ -70,6 +73,7 @@ pub async fn metrics(State(st): St) -> Response {
         g(&m.observes),
         g(&m.selects),
         g(&m.sessions_created),
+        g(&m.forks),
         g(&m.sessions_expired),
         g(&m.step_micros) as f64 / 1e6,
         g(&m.catch_ups),
@@ -101,6 +105,11 @@ pub struct Health {
     pub status: String,
     /// The model's name, or null for a memory-only server.
     pub model: Option<String>,
+    /// The model's version as its trainer wrote it, or null (older folders, memory-only).
+    pub model_version: Option<String>,
+    /// The first 16 hex digits of the SHA-256 of the model's manifest, graphs and weights.
+    #[schema(example = "3f9a0c41d2b7e855")]
+    pub model_digest: Option<String>,
     /// The execution provider that runs the denoiser (cpu, cuda), or null.
     pub provider: Option<String>,
     /// Live sessions.
