@@ -41,6 +41,7 @@ fn routes_on(id: u64, image: &str, pose: &Value) -> Vec<(&'static str, String, O
         ("POST", format!("/v1/sessions/{id}/step"), Some(json!({ "action": { "forward": true } }))),
         ("POST", format!("/v1/sessions/{id}/observe"), Some(json!({ "image_png": image, "pose": pose }))),
         ("POST", format!("/v1/sessions/{id}/select"), Some(json!({ "pose": pose }))),
+        ("POST", format!("/v1/sessions/{id}/fork"), None),
         ("GET", format!("/v1/sessions/{id}/frames/0"), None),
         ("GET", format!("/v1/sessions/{id}/frames/0/image"), None),
         ("GET", format!("/v1/sessions/{id}/frames/0/depth"), None),
@@ -111,10 +112,15 @@ fn a_tenant_over_its_session_limit_or_rate_gets_429_with_retry_after() {
     let env = [("WORLDPACK_TOKENS", TOKENS)];
     let s = Server::start_with(&temp_store("tenant-limits"), &["--memory-only", "--max-sessions-per-tenant", "2", "--rate-per-tenant", "5"], Stdio::inherit(), &env);
     let create = |token| call("POST", &format!("{}/v1/sessions", s.url), Some(token), Some(&json!({ "frames": [{ "image_png": png_1x1(), "pose": c2w([0.0, 0.0, 0.0]) }], "intrinsics": { "hfov_deg": 60, "width": 1, "height": 1 } })));
-    assert_eq!(create("acme-token-1").0, 201);
-    assert_eq!(create("acme-token-1").0, 201);
+    let (code, first, _) = create("acme-token-1");
+    assert_eq!(code, 201);
+    // A fork is a live session of its tenant: it counts against the limit.
+    let fork = || call("POST", &format!("{}/v1/sessions/{}/fork", s.url, first["session"]), Some("acme-token-1"), None);
+    assert_eq!(fork().0, 201);
     let (code, r, _) = create("acme-token-1");
     assert_eq!((code, r["error"]["field"].as_str()), (429, Some("session")), "{r}");
+    let (code, r, _) = fork();
+    assert_eq!((code, r["error"]["field"].as_str()), (429, Some("session")), "a fork past the limit: {r}");
     assert_eq!(create("beta-token-2").0, 201, "another tenant has its own limit");
     // 5 requests a second, bursts of 10: a quick run of 30 is refused partway, with Retry-After.
     let mut refused = None;

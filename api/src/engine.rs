@@ -18,8 +18,8 @@ use world::render::{RenderSettings, render};
 
 use crate::batch::{self, Batcher, Item, OwnedFrame, OwnedWarp};
 use crate::refusal::EngineError;
-use crate::session::{GENERATED, OBSERVED, Session, player_to};
-use crate::store::{FrameMeta, FrameRecord, SessionRecord, Store};
+use crate::session::{GENERATED, OBSERVED, Session, Timeline, player_to};
+use crate::store::{ForkOf, FrameMeta, FrameRecord, SessionRecord, Store};
 
 pub struct Engine {
     pub store: Store,
@@ -102,7 +102,7 @@ impl Engine {
             .ok_or_else(|| EngineError::invalid("synthetic.biome", "this world has no standable spawn in that biome"))?;
         let player = PlayerState::at_cell(cell, 0.0);
         let (first, _) = self.world_frame(&world, &k, 0, None, &player)?;
-        self.create(SessionRecord { policy, intrinsics: k, world_seed: Some(seed), tenant }, vec![first], Some(world))
+        self.create(SessionRecord { policy, intrinsics: k, world_seed: Some(seed), tenant, fork: None }, vec![first], Some(world))
     }
 
     /// What the synthetic world shows `player`'s camera, as an observed frame
@@ -125,13 +125,13 @@ impl Engine {
     /// an observed frame (exploration, as a robot's camera would record it);
     /// nothing is generated.
     pub fn step_observed(&self, s: &mut Session, action: &Action) -> Result<StepOutcome, EngineError> {
-        let (Some(world), Some(_)) = (s.world.clone(), s.frames.last().and_then(|f| f.player)) else {
+        let (Some(world), Some(_)) = (s.world.clone(), s.history().last().and_then(|f| f.player)) else {
             return Err(EngineError::invalid("observe", "only synthetic sessions have a world to observe; send real frames to /observe"));
         };
-        let (pose, player) = s.motion(action)?;
+        let (pose, player) = s.timeline().motion(action)?;
         let player = player.ok_or_else(|| EngineError::internal("a synthetic session's motion without a player"))?;
         let t0 = Instant::now();
-        let (time, index) = (s.next_time(), s.frames.len() as u64);
+        let (time, index) = (s.history().next_time(), s.len());
         let k = *s.intrinsics();
         let (record, depth) = self.world_frame(&world, &k, time, Some(action), &player)?;
         self.store.put_frame(s.id, index, &record)?;
@@ -166,37 +166,8 @@ impl Engine {
     /// Generates the next frame of `s` and commits it before returning.
     pub fn step(&self, s: &mut Session, action: &Action, pose: Option<Pose>, sampler: &Sampler, seed: Option<u64>) -> Result<StepOutcome, EngineError> {
         let m = self.model()?;
-        let t0 = Instant::now();
-        let (pose, player) = match pose {
-            Some(p) => (p, None),
-            None => s.motion(action)?,
-        };
-        let time = s.next_time();
-        let frustum = s.frustum(pose)?;
-        let selection = s.plan(&s.policy, &frustum, s.last_plan.as_ref())?;
-        let (plan, exact_evaluations) = (selection.plan, selection.stats.overlap_evaluations);
-        let select_ms = ms(t0);
-        let action_values = action.to_vector();
-        let (warp_frames, warp) = match &m.manifest().denoiser.warp {
-            Some(spec) => s.warp_sources(&frustum, spec.frames)?,
-            None => (Vec::new(), Vec::new()),
-        };
-        // Owned, so the call can run in a batch with other sessions' steps.
-        let item = Item {
-            target_time: time,
-            target_pose: pose,
-            action: action_values.to_vec(),
-            seed: seed.unwrap_or(time),
-            warp: warp.iter().map(|w| OwnedWarp { rgb: w.rgb.to_vec(), depth_mm: w.depth_mm.to_vec(), pose: *w.pose, intrinsics: *w.intrinsics }).collect(),
-            frames: plan
-                .selected()
-                .filter_map(|(_, f)| {
-                    let fr = s.frames.get(f.id as usize)?;
-                    Some((f.id, OwnedFrame { latent: fr.latent.clone(), time: fr.time, pose: fr.pose, generated: fr.generated }))
-                })
-                .collect(),
-            plan: plan.clone(),
-        };
+        let next = prepare(m, &s.timeline(), action, pose, seed, s.last_plan.as_ref())?;
+        let Next { pose, player, time, plan, exact_evaluations, warp_frames, select_ms, item } = next;
         let outcome = match &self.batcher {
             Some(b) => b.predict(m, &s.policy.packing, sampler, item)?,
             None => batch::call(m, &s.policy.packing, sampler, &[&item])?.remove(0),
@@ -211,7 +182,7 @@ impl Engine {
         let png = encode_png(img.width as u32, img.height as u32, &predicted.rgb);
         let decode_ms = model_decode_ms + ms(t2);
         let t3 = Instant::now();
-        let index = s.frames.len() as u64;
+        let index = s.len();
         let record = FrameRecord { meta: meta(&pose, time, GENERATED, Some(action), player.as_ref()), latent: predicted.latent, png, depth_png16: Vec::new() };
         self.store.put_frame(s.id, index, &record)?;
         let store_ms = ms(t3);
@@ -232,6 +203,15 @@ impl Engine {
         })
     }
 
+    /// A fork of `parent`: a new session of the same tenant, policy and
+    /// world whose history is the parent's up to now, shared in memory and in
+    /// the store (one record and a link; no frame is copied).
+    pub fn fork(&self, parent: &mut Session) -> Result<Session, EngineError> {
+        let record = SessionRecord { fork: Some(ForkOf { parent: parent.id, frames: parent.len() }), ..parent.record.clone() };
+        let id = self.store.create_fork(&record)?;
+        parent.fork(id, record)
+    }
+
     /// What a synthetic session's world shows at `pose` (RGB at the session's
     /// camera); `None` for sessions of real frames, which have no truth here.
     pub fn truth_at(&self, s: &Session, pose: &Pose) -> Result<Option<Vec<u8>>, EngineError> {
@@ -246,8 +226,8 @@ impl Engine {
         let k = *s.intrinsics();
         let latent = self.latent_of(rgb, w, h, &k, "image_png")?;
         s.frustum(pose)?;
-        let time = s.next_time();
-        let index = s.frames.len() as u64;
+        let time = s.history().next_time();
+        let index = s.len();
         let depth = if depth_png16.is_empty() { None } else { Some(world::picture::decode_depth_png16(&depth_png16).map_err(|e| EngineError::invalid("depth_png16", e))?.0) };
         let record = FrameRecord { meta: meta(&pose, time, OBSERVED, action, None), latent, png: encode_png(w, h, rgb), depth_png16 };
         self.store.put_frame(s.id, index, &record)?;
@@ -257,6 +237,55 @@ impl Engine {
         }
         Ok((index, time))
     }
+}
+
+/// A generated frame's inputs, chosen before the model runs.
+pub(crate) struct Next {
+    pub pose: Pose,
+    pub player: Option<PlayerState>,
+    pub time: u64,
+    pub plan: ContextPlan,
+    pub exact_evaluations: usize,
+    pub warp_frames: Vec<u64>,
+    pub select_ms: f64,
+    /// The model call, owned so that it can run in a batch.
+    pub item: Item,
+}
+
+/// The next frame's pose (given, or by the motion model), its plan over
+/// `t`'s frames and a geometry model's warp sources: what a step and an
+/// imagined step both run before the model.
+pub(crate) fn prepare(m: &Model, t: &Timeline, action: &Action, pose: Option<Pose>, seed: Option<u64>, previous: Option<&ContextPlan>) -> Result<Next, EngineError> {
+    let t0 = Instant::now();
+    let (pose, player) = match pose {
+        Some(p) => (p, None),
+        None => t.motion(action)?,
+    };
+    let time = t.history.next_time();
+    let frustum = t.session.frustum(pose)?;
+    let selection = t.plan(&t.session.policy, &frustum, previous)?;
+    let (plan, exact_evaluations) = (selection.plan, selection.stats.overlap_evaluations);
+    let select_ms = ms(t0);
+    let (warp_frames, warp) = match &m.manifest().denoiser.warp {
+        Some(spec) => t.warp_sources(&frustum, spec.frames)?,
+        None => (Vec::new(), Vec::new()),
+    };
+    let item = Item {
+        target_time: time,
+        target_pose: pose,
+        action: action.to_vector().to_vec(),
+        seed: seed.unwrap_or(time),
+        warp: warp.iter().map(|w| OwnedWarp { rgb: w.rgb.to_vec(), depth_mm: w.depth_mm.to_vec(), pose: *w.pose, intrinsics: *w.intrinsics }).collect(),
+        frames: plan
+            .selected()
+            .filter_map(|(_, f)| {
+                let fr = t.history.frame(f.id)?;
+                Some((f.id, OwnedFrame { latent: fr.latent.clone(), time: fr.time, pose: fr.pose, generated: fr.generated }))
+            })
+            .collect(),
+        plan: plan.clone(),
+    };
+    Ok(Next { pose, player, time, plan, exact_evaluations, warp_frames, select_ms, item })
 }
 
 fn ms(since: Instant) -> f64 {

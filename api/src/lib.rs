@@ -6,6 +6,7 @@ pub mod auth;
 pub mod batch;
 pub mod engine;
 pub mod error;
+pub mod history;
 pub mod openapi;
 pub mod postgres_store;
 pub mod postgres_tls;
@@ -33,7 +34,6 @@ use tokio::sync::Semaphore;
 pub use error::ApiError;
 pub use refusal::EngineError;
 use engine::Engine;
-use session::Session;
 use state::{AppState, Metrics, Slot};
 use store::Store;
 
@@ -169,13 +169,15 @@ impl Server {
             metrics: Metrics::default(),
             config: config.clone(),
         });
-        let mut restored = 0;
-        for (id, record) in tokio::task::block_in_place(|| state.engine.store.sessions()).map_err(|e| e.to_string())? {
-            let frames = tokio::task::block_in_place(|| state.engine.store.frames(id)).map_err(|e| e.to_string())?;
-            let world = record.world_seed.map(|s| state.engine.world(s));
-            let s = Session::restore(id, record, frames, world).map_err(|e| format!("restoring session {id}: {}", e.message))?;
-            restored += 1;
-            state.sessions.write().unwrap().insert(id, Arc::new(Slot::new(s)));
+        let engine = &state.engine;
+        let sessions = tokio::task::block_in_place(|| {
+            let records = engine.store.sessions()?;
+            session::restore_all(records, |id, start| Ok(engine.store.frames_from(id, start)?), |seed| engine.world(seed))
+        })
+        .map_err(|e| e.message)?;
+        let restored = sessions.len();
+        for s in sessions {
+            state.sessions.write().unwrap().insert(s.id, Arc::new(Slot::new(s)));
         }
         if let Some(idle) = config.retain_idle {
             tokio::spawn(retention::expire_idle_sessions(state.clone(), idle));

@@ -13,7 +13,7 @@ use r2d2_postgres::PostgresConnectionManager;
 use tokio_postgres_rustls::MakeRustlsConnect;
 
 use crate::postgres_tls;
-use crate::records::{FrameMeta, FrameRecord, SessionRecord, StoreError, err};
+use crate::records::{ForkOf, FrameMeta, FrameRecord, SessionRecord, StoreError, err};
 
 mod embedded {
     refinery::embed_migrations!("migrations");
@@ -107,6 +107,27 @@ fn latent_bytes(latent: &[f32]) -> Vec<u8> {
     latent.iter().flat_map(|v| v.to_le_bytes()).collect()
 }
 
+/// A session's row (`id, record::text, parent, fork_at`) as its record: the
+/// fork link lives in columns, where the database keeps it referring to a stored session.
+fn session_of(row: &postgres::Row) -> Result<(u64, SessionRecord), StoreError> {
+    let (session, record, parent, fork_at): (i64, String, Option<i64>, Option<i64>) = (row.get(0), row.get(1), row.get(2), row.get(3));
+    let mut record: SessionRecord = serde_json::from_str(&record).map_err(err)?;
+    record.fork = parent.zip(fork_at).map(|(parent, frames)| ForkOf { parent: parent as u64, frames: frames as u64 });
+    Ok((session as u64, record))
+}
+
+/// The record as stored in `record`: without the fork link, which has its columns.
+fn record_json(record: &SessionRecord) -> Result<String, StoreError> {
+    serde_json::to_string(&SessionRecord { fork: None, ..record.clone() }).map_err(err)
+}
+
+/// PostgreSQL's foreign_key_violation.
+fn foreign_key_violation(e: &postgres::Error) -> bool {
+    e.code() == Some(&postgres::error::SqlState::FOREIGN_KEY_VIOLATION)
+}
+
+const SESSION_COLUMNS: &str = "id, record::text, parent, fork_at";
+
 fn frame_of(row: &postgres::Row) -> Result<FrameRecord, StoreError> {
     let meta: String = row.get(0);
     let latent: Vec<u8> = row.get(1);
@@ -166,11 +187,22 @@ impl PgStore {
     pub fn create_session(&self, record: &SessionRecord, first: &FrameRecord) -> Result<u64, StoreError> {
         let mut client = self.client()?;
         let mut txn = client.transaction().map_err(db)?;
-        let record = serde_json::to_string(record).map_err(err)?;
+        let record = record_json(record)?;
         let session: i64 = txn.query_one("INSERT INTO sessions (record) VALUES ($1::text::jsonb) RETURNING id", &[&record]).map_err(db)?.get(0);
         insert_frame(&mut txn, session, 0, first)?; // a new session: its frame 0 is free
         txn.commit().map_err(db)?;
         Ok(session as u64)
+    }
+
+    /// One row: the parent's frames stay where they are. The reference makes
+    /// the database refuse a parent deleted meanwhile.
+    pub fn create_fork(&self, record: &SessionRecord, fork: ForkOf) -> Result<u64, StoreError> {
+        let sql = "INSERT INTO sessions (record, parent, fork_at) VALUES ($1::text::jsonb, $2, $3) RETURNING id";
+        match self.client()?.query_one(sql, &[&record_json(record)?, &id(fork.parent)?, &id(fork.frames)?]) {
+            Ok(row) => Ok(row.get::<_, i64>(0) as u64),
+            Err(e) if foreign_key_violation(&e) => Err(StoreError::Missing(fork.parent)),
+            Err(e) => Err(db(e)),
+        }
     }
 
     pub fn put_frame(&self, session: u64, index: u64, frame: &FrameRecord) -> Result<(), StoreError> {
@@ -183,44 +215,58 @@ impl PgStore {
         txn.commit().map_err(db)
     }
 
+    /// Refused while forks of it are stored: the row is locked first, so a
+    /// fork being made at the same time either commits before (and is named) or waits and then fails.
     pub fn delete_session(&self, session: u64) -> Result<bool, StoreError> {
-        Ok(self.client()?.execute("DELETE FROM sessions WHERE id = $1", &[&id(session)?]).map_err(db)? > 0)
+        let mut client = self.client()?;
+        let mut txn = client.transaction().map_err(db)?;
+        if txn.query_opt("SELECT 1 FROM sessions WHERE id = $1 FOR UPDATE", &[&id(session)?]).map_err(db)?.is_none() {
+            return Ok(false);
+        }
+        let forks: Vec<u64> = txn.query("SELECT id FROM sessions WHERE parent = $1 ORDER BY id", &[&id(session)?]).map_err(db)?.iter().map(|r| r.get::<_, i64>(0) as u64).collect();
+        if !forks.is_empty() {
+            return Err(StoreError::HasForks { session, forks });
+        }
+        txn.execute("DELETE FROM sessions WHERE id = $1", &[&id(session)?]).map_err(db)?;
+        txn.commit().map_err(db)?;
+        Ok(true)
     }
 
+    /// Idle sessions without forks (a session with forks outlives them).
     pub fn idle_sessions(&self, idle: Duration) -> Result<Vec<u64>, StoreError> {
-        let rows = self
-            .client()?
-            .query("SELECT id FROM sessions WHERE written <= now() - make_interval(secs => $1) ORDER BY written", &[&idle.as_secs_f64()])
-            .map_err(db)?;
+        let sql = "SELECT id FROM sessions s WHERE written <= now() - make_interval(secs => $1)
+                   AND NOT EXISTS (SELECT 1 FROM sessions c WHERE c.parent = s.id) ORDER BY written";
+        let rows = self.client()?.query(sql, &[&idle.as_secs_f64()]).map_err(db)?;
         Ok(rows.iter().map(|r| r.get::<_, i64>(0) as u64).collect())
     }
 
     pub fn delete_if_idle(&self, session: u64, idle: Duration) -> Result<bool, StoreError> {
-        let sql = "DELETE FROM sessions WHERE id = $1 AND written <= now() - make_interval(secs => $2)";
-        Ok(self.client()?.execute(sql, &[&id(session)?, &idle.as_secs_f64()]).map_err(db)? > 0)
+        let sql = "DELETE FROM sessions s WHERE id = $1 AND written <= now() - make_interval(secs => $2)
+                   AND NOT EXISTS (SELECT 1 FROM sessions c WHERE c.parent = s.id)";
+        match self.client()?.execute(sql, &[&id(session)?, &idle.as_secs_f64()]) {
+            Ok(n) => Ok(n > 0),
+            Err(e) if foreign_key_violation(&e) => Ok(false), // forked meanwhile: kept
+            Err(e) => Err(db(e)),
+        }
     }
 
     pub fn sessions(&self) -> Result<Vec<(u64, SessionRecord)>, StoreError> {
-        let rows = self.client()?.query("SELECT id, record::text FROM sessions ORDER BY id", &[]).map_err(db)?;
-        rows.iter()
-            .map(|r| {
-                let (session, record): (i64, String) = (r.get(0), r.get(1));
-                Ok((session as u64, serde_json::from_str(&record).map_err(err)?))
-            })
-            .collect()
+        let rows = self.client()?.query(&format!("SELECT {SESSION_COLUMNS} FROM sessions ORDER BY id"), &[]).map_err(db)?;
+        rows.iter().map(session_of).collect()
     }
 
     pub fn session(&self, session: u64) -> Result<Option<SessionRecord>, StoreError> {
-        let row = self.client()?.query_opt("SELECT record::text FROM sessions WHERE id = $1", &[&id(session)?]).map_err(db)?;
-        row.map(|r| serde_json::from_str(&r.get::<_, String>(0)).map_err(err)).transpose()
+        let row = self.client()?.query_opt(&format!("SELECT {SESSION_COLUMNS} FROM sessions WHERE id = $1"), &[&id(session)?]).map_err(db)?;
+        Ok(row.as_ref().map(session_of).transpose()?.map(|(_, record)| record))
     }
 
-    pub fn frames_from(&self, session: u64, start: u64) -> Result<Vec<FrameRecord>, StoreError> {
+    /// Frames `start..end` stored under `session` itself, in index order.
+    pub fn frames_between(&self, session: u64, start: u64, end: u64) -> Result<Vec<FrameRecord>, StoreError> {
         let rows = self
             .client()?
             .query(
-                "SELECT meta::text, latent, png, depth_png16 FROM frames WHERE session = $1 AND idx >= $2 ORDER BY idx",
-                &[&id(session)?, &id(start)?],
+                "SELECT meta::text, latent, png, depth_png16 FROM frames WHERE session = $1 AND idx >= $2 AND idx < $3 ORDER BY idx",
+                &[&id(session)?, &id(start)?, &id(end.min(i64::MAX as u64))?],
             )
             .map_err(db)?;
         rows.iter().map(frame_of).collect()

@@ -14,6 +14,16 @@ pub enum StoreError {
     /// server on the same database) wrote it first. Frames are never replaced.
     #[error("frame {index} of session {session} is already stored: the session moved on (another request or replica wrote it first)")]
     Taken { session: u64, index: u64 },
+    /// A session to fork is not stored (never made, or deleted meanwhile).
+    #[error("no session {0}")]
+    Missing(u64),
+    /// A session that forks were made from is deleted only after them: they read its frames.
+    #[error("session {session} has live forks ({}); delete them first: they read its frames", list(forks))]
+    HasForks { session: u64, forks: Vec<u64> },
+}
+
+fn list(ids: &[u64]) -> String {
+    ids.iter().map(u64::to_string).collect::<Vec<_>>().join(", ")
 }
 
 pub(crate) fn err(e: impl std::fmt::Display) -> StoreError {
@@ -31,6 +41,17 @@ pub struct SessionRecord {
     /// The tenant that created it, when the server runs with tokens.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub tenant: Option<String>,
+    /// A fork's link to the session it was forked from.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fork: Option<ForkOf>,
+}
+
+/// Where a fork comes from: its first `frames` frames are `parent`'s, stored
+/// once, under the parent; the fork's own frames follow from index `frames` on.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct ForkOf {
+    pub parent: u64,
+    pub frames: u64,
 }
 
 /// One stored frame. `latent` is the model's scaled latent (absent when the

@@ -71,7 +71,8 @@ impl From<StoreError> for EngineError {
     fn from(e: StoreError) -> Self {
         match e {
             StoreError::Unavailable(_) => EngineError::new(Kind::Unavailable, "store", e.to_string()),
-            StoreError::Taken { .. } => EngineError::new(Kind::Conflict, "session", e.to_string()),
+            StoreError::Taken { .. } | StoreError::HasForks { .. } => EngineError::new(Kind::Conflict, "session", e.to_string()),
+            StoreError::Missing(_) => EngineError::new(Kind::NotFound, "session", e.to_string()),
             other => EngineError::internal(other),
         }
     }

@@ -1,52 +1,36 @@
-//! A live session: its policy, the indexed frame memory, every frame's pose
-//! and latent, and (in the synthetic world) the player for the motion model.
+//! A live session: its policy, its history of frames (runs shared with
+//! forks, then its own: `history`), and (in the synthetic world) the player
+//! for the motion model. A [`Timeline`] reads a session's history, or that
+//! history with an imagined rollout's frames on top, for the step.
 
-use std::borrow::Cow;
 use std::collections::HashMap;
 use std::sync::Arc;
 
 use memory::covisibility::{CoVisibility, DepthGrid};
-use memory::{ContextPlan, FrameMemory, Frustum, Intrinsics, MemoryFrame, Policy, PolicySpec, Pose, Selection};
+use memory::{ContextPlan, Frustum, Intrinsics, Policy, PolicySpec, Pose, Selection};
 use model::WarpSource;
 use model::warp::coarse_depth;
 use world::World;
 use motion::{Action, Kinematic, MotionModel};
 use world::agent::PlayerState;
 
+pub use crate::history::{DepthFrame, Frame, History, Segment};
 use crate::refusal::EngineError;
 use crate::store::{FrameMeta, FrameRecord, SessionRecord};
-
-pub struct Frame {
-    pub pose: Pose,
-    pub time: u64,
-    pub latent: Vec<f32>,
-    pub player: Option<PlayerState>,
-    /// Made by the model (a step), not observed: the model is told so when it is in context.
-    pub generated: bool,
-}
-
-/// An observed frame that came with depth, at the session's camera size.
-pub struct DepthFrame {
-    pub rgb: Vec<u8>,
-    pub depth_mm: Vec<u16>,
-}
 
 pub struct Session {
     pub id: u64,
     pub record: SessionRecord,
     pub policy: Policy,
-    pub memory: FrameMemory,
-    pub frames: Vec<Frame>,
     pub last_plan: Option<ContextPlan>,
     pub world: Option<Arc<World>>,
     /// Set by a delete; requests that were queued on the session see it and answer 404.
     pub deleted: bool,
-    /// The observed frames with depth, indexed apart: a geometry model warps
-    /// the one of them that overlaps the target view most.
-    pub depth_memory: FrameMemory,
-    pub depth_frames: HashMap<u64, DepthFrame>,
-    /// Their depth pooled at the default co-visibility grid (memory::covisibility).
-    pub depth_grids: HashMap<u64, DepthGrid>,
+    /// Runs frozen at fork points, oldest first, shared with the sessions
+    /// forked there (and with the session this one was forked from).
+    shared: Vec<Arc<Segment>>,
+    /// The frames since the newest fork point: this session's alone.
+    own: Segment,
 }
 
 /// A stored frame's `source` when a step made it (else `observed`).
@@ -68,23 +52,17 @@ pub fn pose_of(meta: &FrameMeta) -> Result<Pose, EngineError> {
 }
 
 impl Session {
+    /// A session whose history starts with `shared` (a fork's inherited runs; empty for a new session).
+    pub fn new(id: u64, record: SessionRecord, world: Option<Arc<World>>, shared: Vec<Arc<Segment>>) -> Result<Session, EngineError> {
+        let policy = policy_of(&record.policy)?;
+        let start = shared.last().map_or(0, |s| s.end());
+        Ok(Session { id, record, policy, last_plan: None, world, deleted: false, shared, own: Segment::starting_at(start) })
+    }
+
     /// Rebuilds a session from its stored record and frames (server start,
     /// or a session another server made on a shared store).
     pub fn restore(id: u64, record: SessionRecord, frames: Vec<FrameRecord>, world: Option<Arc<World>>) -> Result<Session, EngineError> {
-        let policy = policy_of(&record.policy)?;
-        let mut s = Session {
-            id,
-            record,
-            policy,
-            memory: FrameMemory::new(),
-            frames: Vec::new(),
-            last_plan: None,
-            world,
-            deleted: false,
-            depth_memory: FrameMemory::new(),
-            depth_frames: HashMap::new(),
-            depth_grids: HashMap::new(),
-        };
+        let mut s = Session::new(id, record, world, Vec::new())?;
         s.append_stored(frames)?;
         Ok(s)
     }
@@ -93,7 +71,7 @@ impl Session {
     /// another server wrote to a shared store, or all of them at a restore).
     pub fn append_stored(&mut self, frames: Vec<FrameRecord>) -> Result<(), EngineError> {
         for f in frames {
-            let index = self.frames.len() as u64;
+            let index = self.len();
             let generated = f.meta.source == GENERATED;
             self.push(f.meta.time, pose_of(&f.meta)?, f.latent, f.meta.player.map(player_from), generated)?;
             if !f.depth_png16.is_empty() {
@@ -104,6 +82,25 @@ impl Session {
             }
         }
         Ok(())
+    }
+
+    /// Every frame, shared and own, read as one.
+    pub fn history(&self) -> History<'_> {
+        History::new(self.shared.iter().map(|s| &**s).chain([&self.own]).collect())
+    }
+
+    /// The history with the session's policy, camera and world, as a step reads it.
+    pub fn timeline(&self) -> Timeline<'_> {
+        Timeline { session: self, history: self.history() }
+    }
+
+    /// Frames in the session (shared ones included): the next frame's index.
+    pub fn len(&self) -> u64 {
+        self.own.end()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
     }
 
     pub fn intrinsics(&self) -> &Intrinsics {
@@ -117,9 +114,7 @@ impl Session {
     /// Adds a committed frame to the in-memory index.
     pub fn push(&mut self, time: u64, pose: Pose, latent: Vec<f32>, player: Option<PlayerState>, generated: bool) -> Result<(), EngineError> {
         let frustum = self.frustum(pose)?;
-        self.memory.insert(MemoryFrame { id: self.frames.len() as u64, time, frustum })?;
-        self.frames.push(Frame { pose, time, latent, player, generated });
-        Ok(())
+        self.own.push(frustum, Frame { pose, time, latent, player, generated })
     }
 
     /// Indexes frame `index`'s depth as a warp source. Frames not at the
@@ -129,63 +124,163 @@ impl Session {
         if (width, height) != (k.width, k.height) {
             return Ok(());
         }
-        let f = self.frames.get(index as usize).ok_or_else(|| EngineError::internal(format!("depth for frame {index}, which is not indexed")))?;
-        let frustum = self.frustum(f.pose)?;
-        self.depth_memory.insert(MemoryFrame { id: index, time: f.time, frustum })?;
-        self.depth_grids.insert(index, pool_depth(&depth_mm, &k, CoVisibility::default().cells)?);
-        self.depth_frames.insert(index, DepthFrame { rgb, depth_mm });
-        Ok(())
+        let pose = self.history().frame(index).map(|f| f.pose).ok_or_else(|| EngineError::internal(format!("depth for frame {index}, which is not indexed")))?;
+        let grid = pool_depth(&depth_mm, &k, CoVisibility::default().cells)?;
+        self.own.add_depth(index, self.frustum(pose)?, DepthFrame { rgb, depth_mm }, grid)
+    }
+
+    /// `policy`'s plan for `target` over the session's frames (see [`Timeline::plan`]).
+    pub fn plan(&self, policy: &Policy, target: &Frustum, previous: Option<&ContextPlan>) -> Result<Selection, EngineError> {
+        self.timeline().plan(policy, target, previous)
+    }
+
+    /// Freezes the frames since the last fork point into a run shared from
+    /// now on (moved behind an `Arc`, not copied); a no-op when there are none.
+    pub fn freeze(&mut self) {
+        if !self.own.is_empty() {
+            let next = Segment::starting_at(self.len());
+            let own = std::mem::replace(&mut self.own, next);
+            self.shared.push(Arc::new(own));
+        }
+    }
+
+    /// A session `id` (stored as `record`) whose history is this one's up to
+    /// now, shared: the frames since the last fork point are frozen, and both
+    /// sessions write their next frames to runs of their own.
+    pub fn fork(&mut self, id: u64, record: SessionRecord) -> Result<Session, EngineError> {
+        self.freeze();
+        let mut fork = Session::new(id, record, self.world.clone(), self.shared.clone())?;
+        fork.last_plan = self.last_plan.clone();
+        Ok(fork)
+    }
+
+    /// The frozen runs that hold exactly frames `0..end`, if a fork point is
+    /// at `end` (what a fork made there shares).
+    pub fn shared_until(&self, end: u64) -> Option<Vec<Arc<Segment>>> {
+        let n = self.shared.partition_point(|s| s.end() <= end);
+        (n > 0 && self.shared[n - 1].end() == end).then(|| self.shared[..n].to_vec())
+    }
+}
+
+/// Rebuilds stored sessions (ordered by id, so a fork comes after the session
+/// it was forked from) with their forks sharing their runs, as they did
+/// before the restart: each session's frames are frozen at its forks' points.
+/// `own_frames(id, start)` reads a session's own stored frames from `start` on.
+pub fn restore_all(
+    records: Vec<(u64, SessionRecord)>,
+    mut own_frames: impl FnMut(u64, u64) -> Result<Vec<FrameRecord>, EngineError>,
+    world_of: impl Fn(u64) -> Arc<World>,
+) -> Result<Vec<Session>, EngineError> {
+    let mut fork_points: HashMap<u64, Vec<u64>> = HashMap::new();
+    for (_, r) in &records {
+        if let Some(f) = r.fork {
+            fork_points.entry(f.parent).or_default().push(f.frames);
+        }
+    }
+    let mut done: HashMap<u64, Session> = HashMap::new();
+    let mut order = Vec::with_capacity(records.len());
+    for (id, record) in records {
+        let restoring = |e: EngineError| EngineError::internal(format!("restoring session {id}: {}", e.message));
+        let shared = match record.fork {
+            None => Vec::new(),
+            Some(f) => done
+                .get(&f.parent)
+                .and_then(|p| p.shared_until(f.frames))
+                .ok_or_else(|| EngineError::internal(format!("restoring session {id}: session {} it was forked from, at frame {}, is not stored", f.parent, f.frames)))?,
+        };
+        let world = record.world_seed.map(&world_of);
+        let mut s = Session::new(id, record, world, shared).map_err(restoring)?;
+        let mut frames = own_frames(id, s.len()).map_err(restoring)?.into_iter();
+        let mut points = fork_points.remove(&id).unwrap_or_default();
+        points.sort_unstable();
+        for p in points {
+            let take = p.saturating_sub(s.len()) as usize;
+            s.append_stored(frames.by_ref().take(take).collect()).map_err(restoring)?;
+            s.freeze();
+        }
+        s.append_stored(frames.collect()).map_err(restoring)?;
+        order.push(id);
+        done.insert(id, s);
+    }
+    Ok(order.into_iter().filter_map(|id| done.remove(&id)).collect())
+}
+
+/// A session's history as a step reads it: the session's own, or with an
+/// imagined rollout's frames on top ([`Timeline::with`]).
+pub struct Timeline<'a> {
+    pub session: &'a Session,
+    pub history: History<'a>,
+}
+
+/// Stored frames' coarse depth at a co-visibility grid: the pooled grids
+/// kept at the default size, or pooled now at another.
+enum Grids<'a> {
+    Kept(&'a History<'a>),
+    Pooled(HashMap<u64, DepthGrid>),
+}
+
+impl Grids<'_> {
+    fn get(&self, index: u64) -> Option<&DepthGrid> {
+        match self {
+            Grids::Kept(h) => h.depth_grid(index),
+            Grids::Pooled(m) => m.get(&index),
+        }
+    }
+}
+
+impl<'a> Timeline<'a> {
+    /// This timeline with `top`'s frames after its own.
+    pub fn with(&self, top: &'a Segment) -> Timeline<'a> {
+        Timeline { session: self.session, history: self.history.with(top) }
     }
 
     /// Every observed frame's depth pooled to `cells` columns (metres;
     /// memory::covisibility), by frame index.
-    pub fn depth_grids(&self, cells: u32) -> Result<Cow<'_, HashMap<u64, DepthGrid>>, EngineError> {
+    fn depth_grids(&self, cells: u32) -> Result<Grids<'_>, EngineError> {
         if cells == CoVisibility::default().cells {
-            return Ok(Cow::Borrowed(&self.depth_grids));
+            return Ok(Grids::Kept(&self.history));
         }
-        let k = self.intrinsics();
-        Ok(Cow::Owned(self.depth_frames.iter().map(|(&id, d)| Ok((id, pool_depth(&d.depth_mm, k, cells)?))).collect::<Result<_, EngineError>>()?))
+        let k = self.session.intrinsics();
+        Ok(Grids::Pooled(self.history.depth_frames().map(|(id, d)| Ok((id, pool_depth(&d.depth_mm, k, cells)?))).collect::<Result<_, EngineError>>()?))
     }
 
-    /// `policy`'s plan for `target` (memory::selection): co-visibility reads
-    /// the observed frames' depth at the policy's grid.
+    /// `policy`'s plan for `target` (memory::selection) over every frame of
+    /// the timeline: co-visibility reads the observed frames' depth at the policy's grid.
     pub fn plan(&self, policy: &Policy, target: &Frustum, previous: Option<&ContextPlan>) -> Result<Selection, EngineError> {
-        self.plan_in(&self.memory, policy, target, previous)
+        self.plan_in(&self.history.memory(), policy, target, previous)
     }
 
-    fn plan_in(&self, memory: &FrameMemory, policy: &Policy, target: &Frustum, previous: Option<&ContextPlan>) -> Result<Selection, EngineError> {
+    fn plan_in(&self, memory: &memory::Stack, policy: &Policy, target: &Frustum, previous: Option<&ContextPlan>) -> Result<Selection, EngineError> {
         let grids = match &policy.covisibility {
-            Some(c) => self.depth_grids(c.cells)?,
-            None => Cow::Owned(HashMap::new()),
+            Some(c) => Some(self.depth_grids(c.cells)?),
+            None => None,
         };
-        Ok(memory.plan(policy, target, previous, |id| grids.get(&id))?)
+        Ok(memory.plan(policy, target, previous, |id| grids.as_ref().and_then(|g| g.get(id)))?)
     }
 
     /// The `count` observed frames with depth that overlap `target` most (or,
     /// when the session's policy asks for co-visibility, that saw most of its
     /// expected surface unoccluded), best first, ready to warp, with their
     /// indices (none when no frame with depth sees it).
-    pub fn warp_sources(&self, target: &Frustum, count: usize) -> Result<(Vec<u64>, Vec<WarpSource<'_>>), EngineError> {
-        let best = Policy { covisibility: self.policy.covisibility, ..Policy::best_overlap_frames(count) };
-        let plan = self.plan_in(&self.depth_memory, &best, target, None)?.plan;
+    pub fn warp_sources(&self, target: &Frustum, count: usize) -> Result<(Vec<u64>, Vec<WarpSource<'a>>), EngineError> {
+        let best = Policy { covisibility: self.session.policy.covisibility, ..Policy::best_overlap_frames(count) };
+        let plan = self.plan_in(&self.history.depth_memory(), &best, target, None)?.plan;
+        let intrinsics = self.session.intrinsics();
         Ok(plan
             .selected()
             .filter_map(|(_, f)| {
-                let d = self.depth_frames.get(&f.id)?;
-                Some((f.id, WarpSource { rgb: &d.rgb, depth_mm: &d.depth_mm, pose: &self.frames[f.id as usize].pose, intrinsics: self.intrinsics() }))
+                let d = self.history.depth_frame(f.id)?;
+                let pose = &self.history.frame(f.id)?.pose;
+                Some((f.id, WarpSource { rgb: &d.rgb, depth_mm: &d.depth_mm, pose, intrinsics }))
             })
             .unzip())
-    }
-
-    pub fn next_time(&self) -> u64 {
-        self.frames.last().map_or(0, |f| f.time + 1)
     }
 
     /// The pose after `action`: the world's physics in a synthetic session,
     /// else the kinematic model.
     pub fn motion(&self, action: &Action) -> Result<(Pose, Option<PlayerState>), EngineError> {
-        let last = self.frames.last().ok_or_else(|| EngineError::internal("session without frames"))?;
-        match (&self.world, last.player) {
+        let last = self.history.last().ok_or_else(|| EngineError::internal("session without frames"))?;
+        match (&self.session.world, last.player) {
             (Some(world), Some(player)) => {
                 let physics = world::agent::Physics { world };
                 let next = physics.step(&player, action);
@@ -202,4 +297,57 @@ pub fn player_from(p: [f64; 5]) -> PlayerState {
 
 pub fn player_to(p: &PlayerState) -> [f64; 5] {
     [p.feet[0], p.feet[1], p.feet[2], p.yaw_deg, p.pitch_deg]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::store::ForkOf;
+
+    fn record(fork: Option<ForkOf>) -> SessionRecord {
+        let intrinsics = Intrinsics::from_fov(70.0, None, 8, 8).unwrap();
+        SessionRecord { policy: serde_json::json!({ "kind": "worldpack" }), intrinsics, world_seed: None, tenant: None, fork }
+    }
+
+    fn frame(x: f64) -> FrameRecord {
+        let c2w = [[1.0, 0.0, 0.0, x], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]];
+        FrameRecord { meta: FrameMeta { c2w, time: x as u64, source: OBSERVED.into(), action: None, player: None }, latent: vec![x as f32], png: Vec::new(), depth_png16: Vec::new() }
+    }
+
+    fn shares(a: &Session, b: &Session) -> usize {
+        a.shared.iter().filter(|s| b.shared.iter().any(|t| Arc::ptr_eq(s, t))).count()
+    }
+
+    /// A fork holds its parent's runs, not copies; a restart rebuilds the same sharing.
+    #[test]
+    fn forks_share_runs_in_memory_and_after_a_restore() {
+        let mut parent = Session::restore(1, record(None), (0..5).map(|x| frame(x as f64)).collect(), None).unwrap();
+        let mut child = parent.fork(2, record(Some(ForkOf { parent: 1, frames: 5 }))).unwrap();
+        assert_eq!((child.len(), shares(&parent, &child)), (5, 1));
+        child.append_stored(vec![frame(5.0), frame(6.0)]).unwrap();
+        parent.append_stored(vec![frame(50.0)]).unwrap();
+        let grandchild = child.fork(3, record(Some(ForkOf { parent: 2, frames: 7 }))).unwrap();
+        assert_eq!(shares(&child, &grandchild), 2, "the parent's run and the fork's own");
+        assert_eq!(grandchild.history().frame(6).map(|f| f.latent[0]), Some(6.0));
+        assert_eq!(parent.history().frame(5).map(|f| f.latent[0]), Some(50.0), "the parent's step is its own");
+
+        // The same three stored: their own rows, read back with the links.
+        let own: HashMap<u64, Vec<FrameRecord>> = HashMap::from([
+            (1, vec![0.0, 1.0, 2.0, 3.0, 4.0, 50.0].into_iter().map(frame).collect()),
+            (2, vec![frame(5.0), frame(6.0)]),
+            (3, Vec::new()),
+        ]);
+        let records = vec![(1, record(None)), (2, record(Some(ForkOf { parent: 1, frames: 5 }))), (3, record(Some(ForkOf { parent: 2, frames: 7 })))];
+        let restored = restore_all(records, |id, start| Ok(own[&id].iter().filter(|f| f.meta.time >= start).cloned().collect()), |_| unreachable!()).unwrap();
+        let [p, c, g] = &restored[..] else { panic!("three sessions") };
+        assert_eq!((p.len(), c.len(), g.len()), (6, 7, 7));
+        assert_eq!((shares(p, c), shares(c, g)), (1, 2));
+        let latents = |s: &Session| (0..s.len()).map(|i| s.history().frame(i).unwrap().latent[0]).collect::<Vec<_>>();
+        assert_eq!(latents(g), [0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0]);
+        assert_eq!(latents(p), [0.0, 1.0, 2.0, 3.0, 4.0, 50.0]);
+
+        // A link to a session that is not stored is named, not a panic.
+        let orphan = restore_all(vec![(4, record(Some(ForkOf { parent: 9, frames: 1 })))], |_, _| Ok(Vec::new()), |_| unreachable!());
+        assert!(orphan.err().unwrap().message.contains("session 9"));
+    }
 }

@@ -33,6 +33,7 @@ pub(crate) struct Metrics {
     pub observes: AtomicU64,
     pub selects: AtomicU64,
     pub sessions_created: AtomicU64,
+    pub forks: AtomicU64,
     /// Sessions deleted by retention.
     pub sessions_expired: AtomicU64,
     pub step_micros: AtomicU64,

@@ -10,7 +10,7 @@ use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
 use redb::{Database, Durability, ReadableTable, TableDefinition};
 
-pub use crate::records::{FrameMeta, FrameRecord, SessionRecord, StoreError};
+pub use crate::records::{ForkOf, FrameMeta, FrameRecord, SessionRecord, StoreError};
 use crate::records::err;
 
 /// session id → session record (JSON).
@@ -21,6 +21,8 @@ const FRAMES: TableDefinition<(u64, u64), &[u8]> = TableDefinition::new("frames"
 const COUNTERS: TableDefinition<&str, u64> = TableDefinition::new("counters");
 /// session id → when its newest frame was written (ms since the Unix epoch): what retention reads.
 const WRITTEN: TableDefinition<u64, u64> = TableDefinition::new("written");
+/// (parent, fork) → the frames the fork shares: the parent link, read from the parent's side.
+const FORKS: TableDefinition<(u64, u64), u64> = TableDefinition::new("forks");
 
 fn unix_ms(t: SystemTime) -> u64 {
     t.duration_since(UNIX_EPOCH).map_or(0, |d| d.as_millis() as u64)
@@ -82,6 +84,14 @@ impl Store {
         each_backend!(self, s => s.create_session(record, first))
     }
 
+    /// Stores a fork (`record.fork` says of which session, sharing how many
+    /// frames; nothing of the parent's is copied); returns its id, or
+    /// [`StoreError::Missing`] when the parent is not stored.
+    pub fn create_fork(&self, record: &SessionRecord) -> Result<u64, StoreError> {
+        let Some(fork) = record.fork else { return Err(err("a fork's record names the session it was forked from")) };
+        each_backend!(self, s => s.create_fork(record, fork))
+    }
+
     /// Stores frame `index`, once: an index stored before is [`StoreError::Taken`].
     pub fn put_frame(&self, session: u64, index: u64, frame: &FrameRecord) -> Result<(), StoreError> {
         each_backend!(self, s => s.put_frame(session, index, frame))
@@ -98,12 +108,14 @@ impl Store {
         each_backend!(self, s => s.session(id))
     }
 
-    /// A session's frames from index `start` on, in index order.
+    /// The frames stored under `session` itself from index `start` on, in
+    /// index order (a fork's shared frames are stored under its parent).
     pub fn frames_from(&self, session: u64, start: u64) -> Result<Vec<FrameRecord>, StoreError> {
-        each_backend!(self, s => s.frames_from(session, start))
+        each_backend!(self, s => s.frames_between(session, start, u64::MAX))
     }
 
-    /// Removes a session and its frames; false when there was none.
+    /// Removes a session and its frames; false when there was none;
+    /// [`StoreError::HasForks`] while forks of it are stored.
     pub fn delete_session(&self, id: u64) -> Result<bool, StoreError> {
         each_backend!(self, s => s.delete_session(id))
     }
@@ -123,13 +135,46 @@ impl Store {
         each_backend!(self, s => s.delete_if_idle(id, idle))
     }
 
-    /// Every frame of a session, in index order.
-    pub fn frames(&self, session: u64) -> Result<Vec<FrameRecord>, StoreError> {
-        self.frames_from(session, 0)
+    /// Frames `0..end` of a session as it reads them, in index order: a
+    /// fork's first frames from the sessions it was forked from.
+    pub fn frames_before(&self, session: u64, end: u64) -> Result<Vec<FrameRecord>, StoreError> {
+        let mut out = Vec::new();
+        for (owner, start, end) in self.lineage(session, end)? {
+            out.extend(each_backend!(self, s => s.frames_between(owner, start, end))?);
+        }
+        Ok(out)
     }
 
+    /// Every frame of a session as it reads them, in index order.
+    pub fn frames(&self, session: u64) -> Result<Vec<FrameRecord>, StoreError> {
+        self.frames_before(session, u64::MAX)
+    }
+
+    /// Frame `index` of a session as it reads it (a fork's shared frames are its parent's).
     pub fn frame(&self, session: u64, index: u64) -> Result<Option<FrameRecord>, StoreError> {
-        each_backend!(self, s => s.frame(session, index))
+        match self.lineage(session, index.saturating_add(1))?.last() {
+            Some(&(owner, start, _)) if start <= index => each_backend!(self, s => s.frame(owner, index)),
+            _ => Ok(None),
+        }
+    }
+
+    /// Where frames `0..end` of `session` are stored: (session, start, end)
+    /// runs, oldest first, following fork links to the first session.
+    fn lineage(&self, session: u64, end: u64) -> Result<Vec<(u64, u64, u64)>, StoreError> {
+        let (mut at, mut end, mut runs) = (session, end, Vec::new());
+        loop {
+            let record = self.session(at)?.ok_or(StoreError::Missing(at))?;
+            let start = record.fork.map_or(0, |f| f.frames);
+            if end > start {
+                runs.push((at, start, end));
+            }
+            match record.fork {
+                Some(f) => (at, end) = (f.parent, end.min(f.frames)),
+                None => break,
+            }
+        }
+        runs.reverse();
+        Ok(runs)
     }
 }
 
@@ -148,6 +193,7 @@ impl RedbStore {
         txn.open_table(SESSIONS).map_err(err)?;
         txn.open_table(FRAMES).map_err(err)?;
         txn.open_table(COUNTERS).map_err(err)?;
+        txn.open_table(FORKS).map_err(err)?;
         {
             // Stores written before retention existed: their sessions count as written now.
             let sessions = txn.open_table(SESSIONS).map_err(err)?;
@@ -185,6 +231,21 @@ impl RedbStore {
         })
     }
 
+    pub fn create_fork(&self, record: &SessionRecord, fork: ForkOf) -> Result<u64, StoreError> {
+        self.write(|txn| {
+            if txn.open_table(SESSIONS).map_err(err)?.get(fork.parent).map_err(err)?.is_none() {
+                return Err(StoreError::Missing(fork.parent));
+            }
+            let mut counters = txn.open_table(COUNTERS).map_err(err)?;
+            let id = counters.get("next_session").map_err(err)?.map_or(1, |v| v.value());
+            counters.insert("next_session", id + 1).map_err(err)?;
+            txn.open_table(SESSIONS).map_err(err)?.insert(id, serde_json::to_vec(record).map_err(err)?.as_slice()).map_err(err)?;
+            txn.open_table(FORKS).map_err(err)?.insert((fork.parent, id), fork.frames).map_err(err)?;
+            txn.open_table(WRITTEN).map_err(err)?.insert(id, unix_ms(SystemTime::now())).map_err(err)?;
+            Ok(id)
+        })
+    }
+
     pub fn put_frame(&self, session: u64, index: u64, frame: &FrameRecord) -> Result<(), StoreError> {
         self.write(|txn| {
             let mut frames = txn.open_table(FRAMES).map_err(err)?;
@@ -208,13 +269,15 @@ impl RedbStore {
         self.write(|txn| remove_session(txn, id))
     }
 
+    /// Idle sessions without forks (a session with forks outlives them).
     pub fn idle_sessions(&self, idle: Duration) -> Result<Vec<u64>, StoreError> {
         let cutoff = idle_cutoff(idle);
         let txn = self.db.begin_read().map_err(err)?;
+        let forks = txn.open_table(FORKS).map_err(err)?;
         let mut out = Vec::new();
         for row in txn.open_table(WRITTEN).map_err(err)?.iter().map_err(err)? {
             let (id, written) = row.map_err(err)?;
-            if written.value() <= cutoff {
+            if written.value() <= cutoff && forks_of(&forks, id.value())?.is_empty() {
                 out.push(id.value());
             }
         }
@@ -225,7 +288,7 @@ impl RedbStore {
         let cutoff = idle_cutoff(idle);
         self.write(|txn| {
             let written = txn.open_table(WRITTEN).map_err(err)?.get(id).map_err(err)?.map(|v| v.value());
-            if written.is_none_or(|w| w > cutoff) {
+            if written.is_none_or(|w| w > cutoff) || !forks_of(&txn.open_table(FORKS).map_err(err)?, id)?.is_empty() {
                 return Ok(false);
             }
             remove_session(txn, id)
@@ -243,11 +306,15 @@ impl RedbStore {
         Ok(out)
     }
 
-    pub fn frames_from(&self, session: u64, start: u64) -> Result<Vec<FrameRecord>, StoreError> {
+    /// Frames `start..end` stored under `session` itself, in index order.
+    pub fn frames_between(&self, session: u64, start: u64, end: u64) -> Result<Vec<FrameRecord>, StoreError> {
         let txn = self.db.begin_read().map_err(err)?;
         let table = txn.open_table(FRAMES).map_err(err)?;
         let mut out = Vec::new();
-        for row in table.range((session, start)..=(session, u64::MAX)).map_err(err)? {
+        if end <= start {
+            return Ok(out);
+        }
+        for row in table.range((session, start)..(session, end)).map_err(err)? {
             let (_, v) = row.map_err(err)?;
             out.push(FrameRecord::decode(v.value())?);
         }
@@ -261,10 +328,30 @@ impl RedbStore {
     }
 }
 
-/// Removes a session, its frames and its write time in `txn`; false when there was none.
+/// The forks of `session` stored in `forks`.
+fn forks_of(forks: &impl ReadableTable<(u64, u64), u64>, session: u64) -> Result<Vec<u64>, StoreError> {
+    let mut out = Vec::new();
+    for row in forks.range((session, 0)..=(session, u64::MAX)).map_err(err)? {
+        out.push(row.map_err(err)?.0.value().1);
+    }
+    Ok(out)
+}
+
+/// Removes a session, its frames, its write time and its link to the session
+/// it was forked from in `txn`; false when there was none; refused while it has forks.
 fn remove_session(txn: &redb::WriteTransaction, id: u64) -> Result<bool, StoreError> {
-    let existed = txn.open_table(SESSIONS).map_err(err)?.remove(id).map_err(err)?.is_some();
+    let mut forks = txn.open_table(FORKS).map_err(err)?;
+    let children = forks_of(&forks, id)?;
+    if !children.is_empty() {
+        return Err(StoreError::HasForks { session: id, forks: children });
+    }
+    let Some(record) = txn.open_table(SESSIONS).map_err(err)?.remove(id).map_err(err)?.map(|v| v.value().to_vec()) else {
+        return Ok(false);
+    };
+    if let Some(fork) = serde_json::from_slice::<SessionRecord>(&record).map_err(err)?.fork {
+        forks.remove((fork.parent, id)).map_err(err)?;
+    }
     txn.open_table(FRAMES).map_err(err)?.retain_in((id, 0)..=(id, u64::MAX), |_, _| false).map_err(err)?;
     txn.open_table(WRITTEN).map_err(err)?.remove(id).map_err(err)?;
-    Ok(existed)
+    Ok(true)
 }

@@ -91,7 +91,7 @@ pub fn run(model_dir: &Path, other: RuntimeOptions, steps: usize, explore: usize
                 oth.step_observed(&mut b, &act).map_err(fail)?;
             }
             let (la, lb) =
-                (&a.frames.last().expect("a step pushes a frame").latent, &b.frames.last().expect("a step pushes a frame").latent);
+                (&a.history().last().expect("a step pushes a frame").latent, &b.history().last().expect("a step pushes a frame").latent);
             if generated && decoder_max_abs.is_none() {
                 let l = &cpu.model()?.manifest().autoencoder.latent;
                 let latent = Tensor::new(vec![1, l.channels, l.height, l.width], la.clone());

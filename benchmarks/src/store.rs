@@ -67,7 +67,7 @@ pub fn run(frames: usize, json: bool) -> Result<()> {
     let world = world::World::generate(1);
     let samples: Vec<FrameRecord> = (0..16).map(|i| sample_frame(&world, i)).collect();
     let bytes = samples.iter().map(|f| f.encode().len()).sum::<usize>() / samples.len();
-    let record = SessionRecord { policy: serde_json::json!({ "kind": "worldpack" }), tenant: None, intrinsics: world::suite::default_intrinsics(64, 64)?, world_seed: None };
+    let record = SessionRecord { policy: serde_json::json!({ "kind": "worldpack" }), tenant: None, intrinsics: world::suite::default_intrinsics(64, 64)?, world_seed: None, fork: None };
 
     // redb, through the server's own store.
     let path = base.join("frames.redb");

@@ -26,9 +26,27 @@ pub(crate) fn slot(st: &AppState, id: u64, caller: &Caller) -> Res<Arc<Slot>> {
     // Another server on the same database may have made it; its frames are read by `lock`.
     let record = tokio::task::block_in_place(|| st.engine.store.session(id))?.ok_or_else(missing)?;
     let world = record.world_seed.map(|seed| st.engine.world(seed));
-    let session = Session::restore(id, record, Vec::new(), world)?;
+    // A fork another server made: the frames it shares are read once here
+    // (shared in the store, not in this server's memory); its own, by `lock`.
+    let shared = match record.fork {
+        Some(f) => tokio::task::block_in_place(|| st.engine.store.frames_before(f.parent, f.frames))?,
+        None => Vec::new(),
+    };
+    let session = Session::restore(id, record, shared, world)?;
     let slot = Arc::new(Slot::new(session));
     owned(st.sessions.write().unwrap().entry(id).or_insert(slot).clone())
+}
+
+/// Refuses a new session (created or forked) with 429 when the caller's
+/// tenant has its limit of live sessions (forks count: each is a session).
+pub(crate) fn within_session_limit(st: &AppState, caller: &Caller) -> Res<()> {
+    let Some(tenant) = &caller.0 else { return Ok(()) };
+    let limit = st.tokens.limits(tenant).sessions;
+    let owned = st.sessions.read().unwrap().values().filter(|s| s.owner.as_deref() == Some(tenant)).count();
+    if owned >= limit {
+        return Err(ApiError::new(StatusCode::TOO_MANY_REQUESTS, "session", format!("tenant {tenant} has {owned} live sessions, its limit; delete one first")));
+    }
+    Ok(())
 }
 
 /// On a store other servers write too: indexes the frames stored since this
@@ -43,7 +61,7 @@ pub(crate) fn catch_up(st: &AppState, s: &mut Session) -> Res<()> {
             s.deleted = true;
             return Ok(());
         }
-        let new = st.engine.store.frames_from(s.id, s.frames.len() as u64)?;
+        let new = st.engine.store.frames_from(s.id, s.len())?;
         st.metrics.caught_up_frames.fetch_add(new.len() as u64, Ordering::Relaxed);
         s.append_stored(new)
     })?;

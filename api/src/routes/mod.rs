@@ -4,6 +4,7 @@
 
 mod access;
 mod answers;
+mod fork;
 mod frames;
 mod health;
 mod observe;
@@ -23,6 +24,7 @@ use crate::error::ApiError;
 
 pub(crate) use access::blocking;
 // The handlers by name, for the OpenAPI document's `paths`.
+pub(crate) use fork::*;
 pub(crate) use frames::*;
 pub(crate) use health::*;
 pub(crate) use observe::*;
@@ -45,6 +47,7 @@ pub fn router(state: Arc<AppState>) -> Router {
         .route("/metrics", get(metrics))
         .route("/v1/sessions", post(create).get(list))
         .route("/v1/sessions/{id}", get(describe).delete(delete))
+        .route("/v1/sessions/{id}/fork", post(fork))
         .route("/v1/sessions/{id}/step", post(step))
         .route("/v1/sessions/{id}/observe", post(observe))
         .route("/v1/sessions/{id}/select", post(select))

@@ -62,7 +62,7 @@ pub async fn select(State(st): St, caller: Caller, id: Result<Path<u64>, PathRej
             session: id,
             plan: PlanAnswer::of(&s.policy, &plan),
             exact_evaluations: selection.stats.overlap_evaluations,
-            candidates: s.frames.len(),
+            candidates: s.len() as usize,
             select_ms: t.elapsed().as_secs_f64() * 1e3,
             covisibility: selection.covisibility,
         })

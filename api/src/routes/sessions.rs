@@ -22,7 +22,7 @@ use crate::error::{ApiError, ErrorBody};
 use crate::session::policy_of;
 use crate::store::{FrameRecord, SessionRecord};
 use super::request::{parse, session_id, check_id, decode_png, pose_from};
-use super::access::{slot, lock, permit, blocking};
+use super::access::{slot, lock, permit, blocking, within_session_limit};
 use super::{Res, St};
 
 /// A new session: a synthetic world (by seed), or real frames with their
@@ -80,14 +80,7 @@ pub async fn create(State(st): St, caller: Caller, headers: HeaderMap, body: Res
     }
     let policy_spec = req.policy.unwrap_or_else(|| st.config.policy.clone());
     policy_of(&policy_spec)?;
-    if let Some(tenant) = &caller.0 {
-        let limit = st.tokens.limits(tenant).sessions;
-        let owned = st.sessions.read().unwrap().values().filter(|s| s.owner.as_deref() == Some(tenant)).count();
-        if owned >= limit {
-            return Err(ApiError::new(StatusCode::TOO_MANY_REQUESTS, "session",
-                format!("tenant {tenant} has {owned} live sessions, its limit; delete one first")));
-        }
-    }
+    within_session_limit(&st, &caller)?;
     let tenant = caller.0.clone();
     let _permit = permit(&st)?;
     let st2 = st.clone();
@@ -112,10 +105,10 @@ pub async fn create(State(st): St, caller: Caller, headers: HeaderMap, body: Res
                     let latent = e.latent_of(&rgb, w, h, &k, &format!("{at}.image_png"))?;
                     records.push(FrameRecord { meta: meta(&pose, i as u64, "observed", None, None), latent, png: encode_png(w, h, &rgb), depth_png16: Vec::new() });
                 }
-                e.create(SessionRecord { policy: policy_spec, intrinsics: k, world_seed: None, tenant }, records, None)?
+                e.create(SessionRecord { policy: policy_spec, intrinsics: k, world_seed: None, tenant, fork: None }, records, None)?
             }
         };
-        let (id, n) = (session.id, session.frames.len());
+        let (id, n) = (session.id, session.len() as usize);
         st2.sessions.write().unwrap().insert(id, Arc::new(Slot::new(session)));
         Ok((id, n))
     })
@@ -154,18 +147,22 @@ pub async fn describe(State(st): St, caller: Caller, id: Result<Path<u64>, PathR
     let s = lock(&st, &slot).await?;
     Ok(Json(SessionInfo {
         session: id,
-        frames: s.frames.len(),
+        frames: s.len() as usize,
         policy: s.policy.clone(),
         world_seed: s.record.world_seed,
         intrinsics: s.record.intrinsics,
-        has_latents: s.frames.first().is_some_and(|f| !f.latent.is_empty()),
+        has_latents: s.history().first().is_some_and(|f| !f.latent.is_empty()),
+        parent: s.record.fork.map(|f| f.parent),
+        forked_at: s.record.fork.map(|f| f.frames),
     }))
 }
 
 #[utoipa::path(delete, path = "/v1/sessions/{id}", summary = "Delete a session and its stored frames (durable before the answer)",
     params(("id" = u64, Path, description = "session id", minimum = 0, maximum = 9223372036854775807_u64)),
     responses((status = 204, description = "deleted"), (status = 400, description = "the id is not a whole number in range", body = ErrorBody),
-        (status = 404, description = "no such session", body = ErrorBody), (status = 429, description = "too many requests queued on the session", body = ErrorBody)))]
+        (status = 404, description = "no such session", body = ErrorBody),
+        (status = 409, description = "forks of the session live (field `session`, the message lists them): delete them first", body = ErrorBody),
+        (status = 429, description = "too many requests queued on the session", body = ErrorBody)))]
 pub async fn delete(State(st): St, caller: Caller, id: Result<Path<u64>, PathRejection>) -> Res<StatusCode> {
     let id = session_id(id)?;
     let slot = slot(&st, id, &caller)?;
@@ -196,4 +193,8 @@ pub struct SessionInfo {
     pub intrinsics: Intrinsics,
     /// Whether stored frames carry latents (a model was loaded when they came).
     pub has_latents: bool,
+    /// A fork's session it was forked from (null otherwise).
+    pub parent: Option<u64>,
+    /// A fork's frames shared with that session (indices below this are its frames).
+    pub forked_at: Option<u64>,
 }

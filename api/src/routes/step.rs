@@ -85,7 +85,7 @@ pub async fn step(State(st): St, caller: Caller, id: Result<Path<u64>, PathRejec
     let slot = slot(&st, id, &caller)?;
     let mut s = lock(&st, &slot).await?;
     if let Some(expected) = req.expected_index {
-        let next = s.frames.len() as u64;
+        let next = s.len();
         if expected != next {
             return Err(ApiError::new(StatusCode::CONFLICT, "expected_index", format!("the session's next frame is {next}, not {expected}")));
         }
