@@ -1,6 +1,7 @@
 //! The workloads and timing loops behind `worldpack bench`, with the tables
 //! they print; the binary only parses flags and calls them.
 
+pub mod fork;
 pub mod parity;
 pub mod render;
 pub mod select;

@@ -141,6 +141,15 @@ pub enum Bench {
         #[arg(long)]
         json: bool,
     },
+    /// Forking a long session: the fork's cost (store and memory) against re-indexing its frames, and selection over the runs forks leave.
+    Fork {
+        #[arg(long, default_value_t = 10_000, value_parser = clap::value_parser!(u64).range(1..=1_000_000))]
+        frames: u64,
+        #[arg(long, default_value_t = 20, value_parser = clap::value_parser!(u64).range(1..=10_000))]
+        forks: u64,
+        #[arg(long)]
+        json: bool,
+    },
     /// (internal) One layout's peak memory, in a process of its own.
     #[command(hide = true)]
     StepProbe {
@@ -173,6 +182,7 @@ impl Bench {
             Bench::Walk { .. } => "bench walk",
             Bench::Parity { .. } => "bench parity",
             Bench::Store { .. } => "bench store",
+            Bench::Fork { .. } => "bench fork",
             Bench::StepProbe { .. } => "bench step-probe",
             Bench::Render { .. } => "bench render",
         }
@@ -224,6 +234,7 @@ impl Bench {
                 benchmarks::parity::run(model, runtime, *steps as usize, *explore as usize, *back as usize, *json)
             }
             Bench::Store { frames, json } => benchmarks::store::run(*frames as usize, *json),
+            Bench::Fork { frames, forks, json } => benchmarks::fork::run(*frames as usize, *forks as usize, *json),
             Bench::StepProbe { model, layout, provider, threads, calls } => {
                 benchmarks::step::probe(model, layout, model::RuntimeOptions { provider: *provider, threads: *threads }, *calls)
             }
