@@ -1,0 +1,47 @@
+#!/usr/bin/env bash
+# MiniWorld end to end (docs/miniworld.md): suites from MiniWorld's rooms in the dataset
+# format, a model made by `worldpack train` fine-tuned from the Doom family, and the
+# held-out eval on world seeds (and one environment, YMaze) never trained on.
+#   ./scripts/miniworld.sh data      # data/mw-{train,val,test-aba,test-abca}: 200 / 16 / 48 / 48 walks, checked and planned
+#   ./scripts/miniworld.sh train     # ./scripts/train.sh --from doom --hours HOURS (1.5) -> runs/mw
+#   ./scripts/miniworld.sh eval SUITE   # the served configuration against the model it started from, its own
+#                                    # baseline and the references, paired (MODEL: runs/mw; THREADS: 2)
+#   ./scripts/miniworld.sh walk      # a REST walk of a held-out ABCA walk through the Python client -> docs/miniworld/
+set -euo pipefail
+cd "$(dirname "$0")/.."
+bin=target/release/worldpack
+model="${MODEL:-runs/mw}"
+mw() { (cd miniworld && PYTHONPATH=. ../.venv/bin/python -m worldpack_miniworld "$@"); }
+suite() {  # suite DIR ARGS...: made once, then checked and planned
+  local dir=$1; shift
+  [ -f "$dir/index.json" ] || mw suite "$@" --out "../$dir"
+  "$bin" check --data "$dir"
+}
+
+case "${1:-}" in
+  data)
+    suite data/mw-train --split train --task mixed --count 200 --seed 1
+    suite data/mw-val --split train --task mixed --count 16 --seed 3
+    suite data/mw-test-aba --split test --task aba --count 48 --seed 2
+    suite data/mw-test-abca --split test --task abca --count 48 --seed 4
+    for d in data/mw-val data/mw-test-aba data/mw-test-abca; do [ -f "$d/plans.json" ] || "$bin" plan --data "$d"; done ;;
+  train)
+    ./scripts/train.sh --data data/mw-train --out "$model" --from doom --hours "${HOURS:-1.5}" ;;
+  eval)
+    s="${2:?usage: $0 eval SUITE}"
+    mkdir -p "$model/work/eval-models"
+    [ -e "$model/work/eval-models/baseline" ] || ln -s "$PWD/$model/baseline" "$model/work/eval-models/baseline"
+    "$bin" eval --suite "$s" --models "$model/work/eval-models" --policies baseline \
+      --extra served="$model" --covisible served --extra started_from=fixtures/doom/geometry_fused --covisible started_from \
+      --only served_covisible --only started_from_covisible --only baseline --probe-frames 32 \
+      --against served_covisible --strip served_covisible,started_from_covisible,baseline --strip-frames 8 \
+      --threads "${THREADS:-2}" --out "runs/mw-eval/$(basename "$s")" ;;
+  walk)
+    mkdir -p docs/miniworld
+    "$bin" serve --model "$model" --store /tmp/mw-walk.redb --addr 127.0.0.1:18180 & pid=$!
+    trap 'kill $pid' EXIT
+    sleep 2
+    .venv/bin/python clients/python/examples/suite_walk.py --url http://127.0.0.1:18180 --suite data/mw-test-abca \
+      --index "${INDEX:-0}" --out docs/miniworld/rest_walk.png ;;
+  *) sed -n '2,11p' "$0"; exit 2 ;;
+esac
