@@ -34,6 +34,9 @@ pub struct Manifest {
     /// `image`). Absent: the decoded frame is the prediction.
     #[serde(default)]
     pub fusion: Option<GraphSpec>,
+    /// How the model is served as its card measured it (absent: the server's own defaults).
+    #[serde(default)]
+    pub serving: Option<ServingSpec>,
     /// The model's version, as the trainer writes it (absent in older folders).
     #[serde(default)]
     pub version: Option<String>,
@@ -41,6 +44,16 @@ pub struct Manifest {
     /// by [`Manifest::load`]: which exact model answered, whatever the folder is called.
     #[serde(skip)]
     pub digest: String,
+}
+
+/// The manifest's `serving` block (written by `worldpack train`): the policy, sampler, steps
+/// and selection the model's held-out eval used. `worldpack serve` takes each as its default.
+#[derive(Clone, Debug, Default, Deserialize)]
+pub struct ServingSpec {
+    pub policy: Option<String>,
+    pub method: Option<String>,
+    pub steps: Option<u64>,
+    pub covisible: Option<bool>,
 }
 
 #[derive(Clone, Debug, Deserialize)]

@@ -103,7 +103,8 @@ pub fn run(a: Args) -> Result<()> {
     if !(rate_per_tenant.is_finite() && rate_per_tenant > 0.0) {
         bail!("--rate-per-tenant: must be a positive number, got {rate_per_tenant}");
     }
-    let served = if memory_only { Serving::default() } else { Serving::of(&model)? };
+    // The model's `serving` block sets what the flags leave unsaid.
+    let served = if memory_only { model::manifest::ServingSpec::default() } else { model::Manifest::load(&model)?.serving.unwrap_or_default() };
     let steps = steps.or(served.steps).unwrap_or(16);
     let method = match method {
         Some(m) => m,
@@ -146,30 +147,6 @@ pub fn run(a: Args) -> Result<()> {
 /// The model served when `--model` is not given: the voxel world's 1-step student
 /// (docs/models.md), whose manifest says how it is served.
 pub const SERVED_MODEL: &str = "fixtures/variants/worldpack_geometry_fused_1step";
-
-/// How a model folder is served as its card measured it: its manifest's `serving` block
-/// (written by `worldpack train`). Every field is optional; flags override each.
-#[derive(Default, serde::Deserialize)]
-struct Serving {
-    policy: Option<String>,
-    method: Option<String>,
-    steps: Option<u64>,
-    covisible: Option<bool>,
-}
-
-impl Serving {
-    fn of(model: &std::path::Path) -> Result<Self> {
-        let path = model.join("manifest.json");
-        let text = std::fs::read_to_string(&path).map_err(|e| anyhow::anyhow!("--model: cannot read {}: {e}", path.display()))?;
-        #[derive(serde::Deserialize)]
-        struct Head {
-            #[serde(default)]
-            serving: Option<Serving>,
-        }
-        let head: Head = serde_json::from_str(&text).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
-        Ok(head.serving.unwrap_or_default())
-    }
-}
 
 fn serve(config: api::Config) -> Result<()> {
     let runtime = tokio::runtime::Builder::new_multi_thread().enable_all().build()?;
