@@ -1,6 +1,6 @@
 //! The DDPM schedule and the samplers: respaced ancestral with the posterior
 //! variance, and DDIM, exactly as the Python reference
-//! (`train/worldpack_train/diffusion.py`), and DPM-Solver++(2M) (Lu et
+//! (`train/worldpack_train/core/diffusion.py`), and DPM-Solver++(2M) (Lu et
 //! al. 2022), which reaches the 10-step DDIM's frames in fewer model calls and
 //! is the Rust sampler's alone (it only serves). Coefficients in f64, state in
 //! f32, the model fed the original timestep indices.

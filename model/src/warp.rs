@@ -1,6 +1,6 @@
 //! The depth warp a geometry model is conditioned on: a stored frame, with
 //! its depth, splatted into the target camera. The trainer has the same warp
-//! (`train/worldpack_train/warp.py`); the parity test checks the two
+//! (`train/worldpack_train/core/warp.py`); the parity test checks the two
 //! against the cases the export wrote. Float64 throughout, computed in the
 //! same order as the trainer, so both round the same way.
 
