@@ -130,7 +130,7 @@ fn bad_requests_get_4xx_json_naming_the_field() {
         ("bad session id", "/v1/sessions/abc/step".into(), json!({ "action": {} }), 400, "session"),
         ("turn too large", step.clone(), json!({ "action": { "yaw_deg": 1000 } }), 400, "action.yaw_deg"),
         ("key not a bool", step.clone(), json!({ "action": { "jump": "yes" } }), 400, "action.jump"),
-        ("no action", step.clone(), json!({}), 400, "body"),
+        ("no action", step.clone(), json!({}), 400, "action"),
         ("unknown field", step.clone(), json!({ "action": {}, "speed": 2 }), 400, "speed"),
         ("far-away pose", step.clone(), json!({ "action": {}, "pose": c2w([0.0, 1e308, 0.0]) }), 400, "pose.position"),
         ("not a rotation", step.clone(), json!({ "action": {}, "pose": { "c2w": { "rotation": [[2, 0, 0], [0, 1, 0], [0, 0, 1]], "position": [0, 0, 0] } } }), 400, "pose.rotation"),

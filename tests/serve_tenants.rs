@@ -42,6 +42,7 @@ fn routes_on(id: u64, image: &str, pose: &Value) -> Vec<(&'static str, String, O
         ("POST", format!("/v1/sessions/{id}/observe"), Some(json!({ "image_png": image, "pose": pose }))),
         ("POST", format!("/v1/sessions/{id}/select"), Some(json!({ "pose": pose }))),
         ("POST", format!("/v1/sessions/{id}/fork"), None),
+        ("POST", format!("/v1/sessions/{id}/imagine"), Some(json!({ "candidates": [{ "actions": [{ "forward": true }] }] }))),
         ("GET", format!("/v1/sessions/{id}/frames/0"), None),
         ("GET", format!("/v1/sessions/{id}/frames/0/image"), None),
         ("GET", format!("/v1/sessions/{id}/frames/0/depth"), None),

@@ -288,7 +288,7 @@ pub(crate) fn prepare(m: &Model, t: &Timeline, action: &Action, pose: Option<Pos
     Ok(Next { pose, player, time, plan, exact_evaluations, warp_frames, select_ms, item })
 }
 
-fn ms(since: Instant) -> f64 {
+pub(crate) fn ms(since: Instant) -> f64 {
     since.elapsed().as_secs_f64() * 1e3
 }
 

@@ -7,6 +7,7 @@ pub mod batch;
 pub mod engine;
 pub mod error;
 pub mod history;
+pub mod imagine;
 pub mod openapi;
 pub mod postgres_store;
 pub mod postgres_tls;
@@ -79,6 +80,8 @@ pub struct Config {
     /// A fusion-head model's memory keeps each frame's sampled latent instead
     /// of re-encoding the blended frame shown (one encoder call less a step).
     pub sampled_latents: bool,
+    /// What one `imagine` request may ask for.
+    pub imagine: imagine::Limits,
 }
 
 impl Default for Config {
@@ -104,6 +107,7 @@ impl Default for Config {
             allow_unauthenticated: false,
             tls: None,
             sampled_latents: false,
+            imagine: imagine::Limits::default(),
         }
     }
 }

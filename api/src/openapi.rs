@@ -24,6 +24,7 @@ use crate::{routes, schemas};
         routes::delete,
         routes::fork,
         routes::step,
+        routes::imagine,
         routes::observe,
         routes::select,
         routes::frame,
@@ -53,11 +54,13 @@ pub fn document() -> Value {
         "Select": { "operationId": "select", "parameters": session },
         "Delete": { "operationId": "delete", "parameters": session },
         "Fork": { "operationId": "fork", "parameters": session },
+        "Imagine": { "operationId": "imagine", "parameters": session },
     });
     // A fork is a session: the same operations apply to it.
     paths["/v1/sessions/{id}/fork"]["post"]["responses"]["201"]["links"] = json!({
         "Describe": { "operationId": "describe", "parameters": session },
         "Step": { "operationId": "step", "parameters": session },
+        "Imagine": { "operationId": "imagine", "parameters": session },
         "Delete": { "operationId": "delete", "parameters": session },
     });
     for (path, method, status) in [("/v1/sessions/{id}/step", "post", "200"), ("/v1/sessions/{id}/observe", "post", "200")] {
@@ -103,7 +106,7 @@ mod tests {
     fn every_path_and_reference_resolves() {
         let doc = document();
         assert_eq!(doc["openapi"], "3.1.0");
-        assert_eq!(doc["paths"].as_object().unwrap().len(), 13);
+        assert_eq!(doc["paths"].as_object().unwrap().len(), 14);
         assert_eq!(doc["components"]["securitySchemes"]["bearer"]["scheme"], "bearer");
         assert!(doc["paths"]["/v1/sessions/{id}/step"]["post"]["responses"]["401"].is_object());
         let text = doc.to_string();

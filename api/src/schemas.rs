@@ -20,6 +20,18 @@ fn nullable(name: &str) -> RefOr<Schema> {
     RefOr::T(Schema::OneOf(OneOfBuilder::new().item(Ref::from_schema_name(name)).item(Object::with_type(Type::Null)).build()))
 }
 
+/// An optional list of a foreign type: an array of it, or null.
+fn nullable_list(name: &str) -> RefOr<Schema> {
+    let list = utoipa::openapi::schema::Array::new(Ref::from_schema_name(name));
+    RefOr::T(Schema::OneOf(OneOfBuilder::new().item(list).item(Object::with_type(Type::Null)).build()))
+}
+
+pub fn optional_actions() -> RefOr<Schema> {
+    nullable_list("Action")
+}
+pub fn optional_poses() -> RefOr<Schema> {
+    nullable_list("Pose")
+}
 pub fn optional_pose() -> RefOr<Schema> {
     nullable("Pose")
 }

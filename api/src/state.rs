@@ -34,6 +34,8 @@ pub(crate) struct Metrics {
     pub selects: AtomicU64,
     pub sessions_created: AtomicU64,
     pub forks: AtomicU64,
+    /// Frames made by `imagine`, never stored.
+    pub imagined_frames: AtomicU64,
     /// Sessions deleted by retention.
     pub sessions_expired: AtomicU64,
     pub step_micros: AtomicU64,

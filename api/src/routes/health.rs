@@ -61,6 +61,7 @@ pub async fn metrics(State(st): St) -> Response {
          # TYPE worldpack_selects_total counter\nworldpack_selects_total {}\n\
          # TYPE worldpack_sessions_created_total counter\nworldpack_sessions_created_total {}\n\
          # TYPE worldpack_forks_total counter\nworldpack_forks_total {}\n\
+         # TYPE worldpack_imagined_frames_total counter\nworldpack_imagined_frames_total {}\n\
          # TYPE worldpack_sessions_expired_total counter\nworldpack_sessions_expired_total {}\n\
          # TYPE worldpack_step_seconds_sum counter\nworldpack_step_seconds_sum {}\n\
          # TYPE worldpack_catch_ups_total counter\nworldpack_catch_ups_total {}\n\
@@ -74,6 +75,7 @@ pub async fn metrics(State(st): St) -> Response {
         g(&m.selects),
         g(&m.sessions_created),
         g(&m.forks),
+        g(&m.imagined_frames),
         g(&m.sessions_expired),
         g(&m.step_micros) as f64 / 1e6,
         g(&m.catch_ups),

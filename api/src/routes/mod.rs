@@ -7,6 +7,7 @@ mod answers;
 mod fork;
 mod frames;
 mod health;
+mod imagine;
 mod observe;
 mod request;
 mod select;
@@ -27,6 +28,7 @@ pub(crate) use access::blocking;
 pub(crate) use fork::*;
 pub(crate) use frames::*;
 pub(crate) use health::*;
+pub(crate) use imagine::*;
 pub(crate) use observe::*;
 pub(crate) use select::*;
 pub(crate) use sessions::*;
@@ -49,6 +51,7 @@ pub fn router(state: Arc<AppState>) -> Router {
         .route("/v1/sessions/{id}", get(describe).delete(delete))
         .route("/v1/sessions/{id}/fork", post(fork))
         .route("/v1/sessions/{id}/step", post(step))
+        .route("/v1/sessions/{id}/imagine", post(imagine))
         .route("/v1/sessions/{id}/observe", post(observe))
         .route("/v1/sessions/{id}/select", post(select))
         .route("/v1/sessions/{id}/frames/{index}", get(frame))

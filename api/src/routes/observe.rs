@@ -67,7 +67,7 @@ pub async fn observe(State(st): St, caller: Caller, id: Result<Path<u64>, PathRe
     let id = session_id(id)?;
     let req: ObserveRequest = parse(&headers, body)?;
     if let Some(a) = &req.action {
-        validate_action(a)?;
+        validate_action(a, "action")?;
     }
     let pose = pose_from(&req.pose, "pose")?;
     let (rgb, w, h) = decode_png("image_png", &req.image_png)?;

@@ -36,8 +36,17 @@ pub(crate) fn parse<T: DeserializeOwned>(headers: &HeaderMap, body: Result<Bytes
         serde_json::from_value(v).ok()
     });
     retried.ok_or_else(|| {
+        let message = first.inner().to_string();
         let path = first.path().to_string();
-        ApiError::bad(if path == "." { "body".into() } else { path }, first.inner().to_string())
+        // A missing field is named itself, not the object it is missing from.
+        let missing = message.strip_prefix("missing field `").and_then(|m| m.split('`').next());
+        let field = match (path.as_str(), missing) {
+            (".", Some(name)) => name.to_string(),
+            (".", None) => "body".into(),
+            (_, Some(name)) => format!("{path}.{name}"),
+            (_, None) => path,
+        };
+        ApiError::bad(field, message)
     })
 }
 
@@ -87,11 +96,20 @@ pub(crate) fn pose_from(input: &PoseInput, field: &str) -> Res<Pose> {
     Ok(pose)
 }
 
-pub(crate) fn validate_action(a: &Action) -> Res<()> {
-    for (field, v) in [("action.yaw_deg", a.yaw_deg), ("action.pitch_deg", a.pitch_deg)] {
+/// Checks the action's angles; `at` is where it sits in the request (`action`, `candidates[0].actions[3]`).
+pub(crate) fn validate_action(a: &Action, at: &str) -> Res<()> {
+    for (field, v) in [("yaw_deg", a.yaw_deg), ("pitch_deg", a.pitch_deg)] {
         if !v.is_finite() || v.abs() > MAX_TURN_DEG {
-            return Err(ApiError::bad(field, format!("must be a finite angle within ±{MAX_TURN_DEG} degrees, got {v}")));
+            return Err(ApiError::bad(format!("{at}.{field}"), format!("must be a finite angle within ±{MAX_TURN_DEG} degrees, got {v}")));
         }
     }
     Ok(())
+}
+
+/// The sampler of a request that may name its sampler steps (1 to 1000; default: the server's `--steps`).
+pub(crate) fn sampler(config: &crate::Config, m: &model::Model, steps: Option<usize>) -> Res<model::Sampler> {
+    if steps.is_some_and(|n| !(1..=1000).contains(&n)) {
+        return Err(ApiError::bad("steps", "must be from 1 to 1000"));
+    }
+    Ok(model::Sampler::new(&m.manifest().diffusion, steps.unwrap_or(config.steps), config.method, 0.0)?)
 }

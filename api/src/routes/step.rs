@@ -11,7 +11,6 @@ use axum::http::{HeaderMap, StatusCode};
 use base64::Engine;
 use base64::engine::general_purpose::STANDARD as B64;
 use memory::input::PoseInput;
-use model::Sampler;
 use motion::Action;
 use serde::{Deserialize, Serialize};
 use utoipa::ToSchema;
@@ -19,7 +18,7 @@ use utoipa::ToSchema;
 use crate::schemas;
 use crate::auth::Caller;
 use crate::error::{ApiError, ErrorBody};
-use super::request::{parse, session_id, check_id, pose_from, validate_action};
+use super::request::{parse, session_id, check_id, pose_from, sampler, validate_action};
 use super::access::{slot, lock, permit, blocking};
 use super::answers::{PoseAnswer, PlanAnswer};
 use super::{Res, St};
@@ -71,16 +70,12 @@ pub async fn step(State(st): St, caller: Caller, id: Result<Path<u64>, PathRejec
     let started = Instant::now();
     let id = session_id(id)?;
     let req: StepRequest = parse(&headers, body)?;
-    validate_action(&req.action)?;
+    validate_action(&req.action, "action")?;
     let m = st.engine.model()?;
-    if req.steps.is_some_and(|n| !(1..=1000).contains(&n)) {
-        return Err(ApiError::bad("steps", "must be from 1 to 1000"));
-    }
+    let sampler = sampler(&st.config, m, req.steps)?;
     if let Some(seed) = req.seed {
         check_id("seed", seed)?;
     }
-    let steps = req.steps.unwrap_or(st.config.steps);
-    let sampler = Sampler::new(&m.manifest().diffusion, steps, st.config.method, 0.0)?;
     let provider = Some(m.provider().to_string());
     let slot = slot(&st, id, &caller)?;
     let mut s = lock(&st, &slot).await?;
