@@ -19,6 +19,7 @@ ROOT = pathlib.Path(__file__).resolve().parent.parent
 from worldpack_train.core import data as wdata  # torch-free
 from worldpack_train.core.config import LAYOUTS, DiffusionConfig
 from worldpack_train.core.diffusion import Schedule, sample
+from worldpack_train.metrics import psnr
 
 
 def main():
@@ -69,9 +70,8 @@ def main():
         best = rgb[ids[0]]
         truth = rgb[t]
         p = to_u8(pred)
-        mse = lambda u, v: np.mean((u.astype(np.float64) - v.astype(np.float64)) ** 2)
-        psnr_pred.append(10 * np.log10(255**2 / max(mse(p, truth), 1e-9)))
-        psnr_copy.append(10 * np.log10(255**2 / max(mse(newest, truth), 1e-9)))
+        psnr_pred.append(psnr(p, truth))
+        psnr_copy.append(psnr(newest, truth))
         gap = np.full((truth.shape[0], 4, 3), 255, np.uint8)
         rows.append(np.concatenate([newest, gap, best, gap, p, gap, truth], axis=1))
     sep = np.full((4, rows[0].shape[1], 3), 255, np.uint8)

@@ -15,7 +15,11 @@ const C2: f64 = (0.03 * 255.0) * (0.03 * 255.0);
 pub fn psnr(a: &[u8], b: &[u8]) -> f64 {
     assert_eq!(a.len(), b.len(), "psnr: images differ in size");
     let se: f64 = a.iter().zip(b).map(|(&x, &y)| (x as f64 - y as f64).powi(2)).sum();
-    let mse = se / a.len().max(1) as f64;
+    psnr_of_mse(se / a.len().max(1) as f64)
+}
+
+/// PSNR in dB of a mean squared error on 0..255 values, capped at [`PSNR_CAP_DB`].
+fn psnr_of_mse(mse: f64) -> f64 {
     if mse == 0.0 { PSNR_CAP_DB } else { (10.0 * (255.0 * 255.0 / mse).log10()).min(PSNR_CAP_DB) }
 }
 
@@ -90,8 +94,7 @@ pub fn psnr_where(a: &[u8], b: &[u8], mask: &[bool], inside: bool, min_pixels: u
     if n < min_pixels.max(1) {
         return None;
     }
-    let mse = se / (3 * n) as f64;
-    Some(if mse == 0.0 { PSNR_CAP_DB } else { (10.0 * (255.0 * 255.0 / mse).log10()).min(PSNR_CAP_DB) })
+    Some(psnr_of_mse(se / (3 * n) as f64))
 }
 
 /// Mean squared difference between neighbouring pixels (right and down) of
