@@ -74,7 +74,7 @@ def test_the_server_keeps_its_documented_contract(server):
     url, headers = server
     out = schemathesis(url + "/openapi.json", url, headers)
     assert out.returncode == 0, out.stdout[-6000:] + out.stderr[-2000:]
-    assert "Tested: 14" in out.stdout, out.stdout[-3000:]
+    assert "Tested: 16" in out.stdout, out.stdout[-3000:]
 
 
 def test_a_document_that_describes_a_wrong_answer_fails(server, tmp_path):

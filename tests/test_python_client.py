@@ -203,3 +203,65 @@ def test_gymnasium_makes_the_environment_by_name(server):
     same = gymnasium.make("WorldPack-v0", url=server, max_steps=1)  # registered by the import above
     assert same.unwrapped.max_steps == 1
     same.close()
+
+
+def test_a_fork_shares_the_present_and_steps_apart(server):
+    c = Client(server)
+    parent = c.create_session(synthetic_seed=3)
+    c.step(parent, {"forward": True}, seed=1)
+    fork = c.fork(parent)
+    info = c.session(fork)
+    assert (info["frames"], info["parent"], info["forked_at"]) == (2, parent, 2)
+    np.testing.assert_array_equal(c.frame_image(fork, 1), c.frame_image(parent, 1))
+    a, b = c.step(parent, {"yaw_deg": 10}, seed=4), c.step(fork, {"yaw_deg": 10}, seed=4)
+    np.testing.assert_array_equal(a.image, b.image)
+    c.step(fork, {"left": True})
+    assert (c.session(parent)["frames"], c.session(fork)["frames"]) == (3, 4)
+    with pytest.raises(WorldPackError) as e:
+        c.delete_session(parent)
+    assert (e.value.status, e.value.field) == (409, "session"), "a session with a live fork is kept"
+    c.delete_session(fork)
+    c.delete_session(parent)
+
+
+def test_imagine_rolls_candidates_out_and_changes_nothing(server):
+    c = Client(server)
+    session = c.create_session(synthetic_seed=4)
+    c.step(session, {"forward": True}, observe=True)
+    goal = c.frame_image(session, 0)
+    plans = [[{"forward": True}, {"yaw_deg": 20}], [{"yaw_deg": -40}, {"yaw_deg": -40}], [{}, {}]]
+    out = c.imagine(session, plans, seed=7, frames="all", goal=goal)
+    assert out.model_calls == 2 and len(out.rollouts) == 3
+    for r in out.rollouts:
+        assert len(r.poses) == 2 and r.poses[0].shape == (4, 4)
+        assert sorted(r.frames) == [0, 1] and r.frames[1].shape == (64, 64, 3) and r.frames[1].dtype == np.uint8
+        assert r.goal["psnr_db"] > 0 and r.goal["latent_mse"] >= 0
+    assert c.session(session)["frames"] == 2, "imagining stores nothing"
+    latents = c.imagine(session, plans[:1], seed=7, frames=1, format="latent")
+    assert latents.rollouts[0].frames[0].dtype == np.float32 and latents.rollouts[0].frames[0].ndim == 3
+    # One candidate is a fork stepped with the same actions and seeds.
+    fork = c.fork(session)
+    for h, action in enumerate(plans[0]):
+        np.testing.assert_array_equal(c.step(fork, action, seed=7 + h).image, out.rollouts[0].frames[h])
+    with pytest.raises(WorldPackError) as e:
+        c.imagine(session, [[{"yaw_deg": 999}]])
+    assert (e.value.status, e.value.field) == (400, "candidates[0].actions[0].yaw_deg")
+
+
+def test_the_environment_forks_and_imagines(server):
+    env = WorldPackEnv(Client(server), max_steps=5)
+    obs, _ = env.reset(seed=5)
+    env.action_space.seed(3)
+    env.step(env.action_space.sample())
+    branch = env.fork()
+    np.testing.assert_array_equal(branch.render(), env.render())
+    assert (branch.index, branch.steps) == (env.index, env.steps)
+    futures = env.imagine([[env.action_space.sample() for _ in range(3)] for _ in range(2)])
+    assert len(futures.rollouts) == 2 and sorted(futures.rollouts[0].frames) == [2]
+    a = {"forward": 1, "back": 0, "left": 0, "right": 0, "jump": 0, "yaw_deg": 5.0, "pitch_deg": 0.0}
+    b = dict(a, forward=0, yaw_deg=-60.0)
+    (obs_a, *_), (obs_b, *_) = env.step(a), branch.step(b)
+    assert not np.array_equal(obs_a["frame"], obs_b["frame"]), "the fork's step is its own"
+    assert env.client.session(env.session)["frames"] == env.index == branch.index
+    branch.close()
+    env.close()

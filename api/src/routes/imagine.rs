@@ -155,7 +155,9 @@ fn candidates(input: &[CandidateInput], limits: &crate::imagine::Limits) -> Res<
 
 #[utoipa::path(post, path = "/v1/sessions/{id}/imagine", summary = "Imagine K candidate futures of H steps from the session's present, without writing to it",
     description = "Each candidate reads the session's memory and its own earlier imagined frames, as a fork stepped H times would; step h of \
-                   every candidate runs in one batched model call. The session, its memory and the store are left as they were. With a \
+                   every candidate runs in one batched model call. Every candidate has the same number of steps, within the server's limits on \
+                   candidates, steps and the bytes of frames answered (400 naming the field beyond them). The session, its memory and the \
+                   store are left as they were. With a \
                    goal image, each candidate's last frame is scored against it: PSNR of the pictures (dB, higher is closer) and the mean \
                    squared difference of the model's latents (lower is closer).",
     params(("id" = u64, Path, description = "session id", minimum = 0, maximum = 9223372036854775807_u64)),

@@ -125,6 +125,29 @@ class Step:
 
 
 @dataclass
+class Rollout:
+    """One imagined candidate: the camera pose of every step (4×4 each), the
+    frames asked for by step (an (H, W, 3) uint8 image, or a float32 latent of
+    the answer's `latent_shape`), and its last frame's score against the goal
+    image when one was given (`psnr_db`, higher is closer; `latent_mse`, lower is closer)."""
+
+    poses: list[np.ndarray]
+    frames: dict[int, np.ndarray]
+    goal: dict | None
+    raw: dict = field(repr=False)
+
+
+@dataclass
+class Imagined:
+    """What `Client.imagine` answers: one `Rollout` per candidate, in order."""
+
+    rollouts: list[Rollout]
+    model_calls: int
+    timings_ms: dict
+    raw: dict = field(repr=False)
+
+
+@dataclass
 class Client:
     """`Client("http://127.0.0.1:8080")`; every method raises `WorldPackError` for a 4xx/5xx answer.
     A server with tokens needs `token=` (or WORLDPACK_TOKEN in the environment): it is sent as
@@ -220,6 +243,53 @@ class Client:
         r = self.request("POST", f"/v1/sessions/{session}/step", body)
         return Step(index=r["index"], image=decode_image(base64.b64decode(r["image_png"])), pose=pose_matrix(r["pose"]),
                     plan=r["selection"]["plan"], truth=r.get("truth"), timings_ms=r["timings_ms"], raw=r)
+
+    def fork(self, session: int) -> int:
+        """A new session whose memory is `session`'s up to now (shared on the server, not
+        copied); returns its id. Its steps are its own. The server refuses to delete a
+        session while forks of it live (409, field `session`): delete the forks first."""
+        return self.request("POST", f"/v1/sessions/{session}/fork")["session"]
+
+    def imagine(self, session: int, actions: Sequence[Sequence[Mapping[str, Any]]] | None = None, *,
+                poses: Sequence[Sequence[Pose | np.ndarray]] | None = None, steps: int | None = None,
+                seed: int | None = None, frames: str | int = "last", format: str = "png",
+                goal: np.ndarray | bytes | None = None) -> Imagined:
+        """Rolls out candidate futures from the session's present without writing to it:
+        `actions[k]` is candidate k's action per step, `poses[k]` (optionally, or instead)
+        its pose per step; every candidate has the same number of steps. `frames` is
+        "last", "all", "none" or n (every n-th step); `format` "png" (images) or "latent"
+        (the model's latents). With `goal` (an image at the model's size) each candidate's
+        last frame is scored against it. Step h of every candidate uses noise seed
+        `seed + h` (default: the frame's time), as stepping a fork with those seeds would."""
+        count = len(actions) if actions is not None else len(poses or [])
+        candidates: list[dict[str, Any]] = [{} for _ in range(count)]
+        if actions is not None:
+            for c, a in zip(candidates, actions):
+                c["actions"] = [dict(x) for x in a]
+        if poses is not None:
+            if len(poses) != count:
+                raise ValueError(f"poses: {len(poses)} candidates for {count} action sequences")
+            for c, p in zip(candidates, poses):
+                c["poses"] = [as_pose(x) for x in p]
+        body: dict[str, Any] = {"candidates": candidates, "format": format,
+                                "frames": {"every": int(frames)} if isinstance(frames, int) else frames}
+        if steps is not None:
+            body["steps"] = int(steps)
+        if seed is not None:
+            body["seed"] = int(seed)
+        if goal is not None:
+            body["goal_png"] = b64(png_bytes(goal))
+        r = self.request("POST", f"/v1/sessions/{session}/imagine", body)
+        shape = r.get("latent_shape")
+
+        def frame(f: dict) -> np.ndarray:
+            if f.get("image_png") is not None:
+                return decode_image(base64.b64decode(f["image_png"]))
+            return np.frombuffer(base64.b64decode(f["latent"]), dtype="<f4").reshape(shape)
+
+        rollouts = [Rollout(poses=[pose_matrix(p) for p in c["poses"]], frames={f["step"]: frame(f) for f in c["frames"]},
+                            goal=c.get("goal"), raw=c) for c in r["candidates"]]
+        return Imagined(rollouts=rollouts, model_calls=r["model_calls"], timings_ms=r["timings_ms"], raw=r)
 
     def select(self, session: int, pose: Pose | np.ndarray) -> dict:
         """The plan the session's policy would choose for `pose` (a dry run)."""

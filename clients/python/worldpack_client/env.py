@@ -7,6 +7,12 @@ the camera pose (OpenCV camera-to-world, 4×4). A world model has no reward:
 it is 0, and episodes end only by truncation after `max_steps`. `info`
 carries the memory plan the step used and, for a synthetic session, the
 PSNR/SSIM of the frame against the world's true frame there.
+
+A planner tries futures without living them: `env.imagine(...)` rolls
+candidate action sequences out from the present and changes nothing;
+`env.fork()` is a second environment at the same present, whose steps are
+its own (close it before resetting or closing the one it came from: the
+server keeps a session while forks of it live).
 """
 
 from __future__ import annotations
@@ -17,7 +23,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from .client import Client, WorldPackError, pose_matrix
+from .client import Client, Imagined, WorldPackError, pose_matrix
 
 KEYS = ("forward", "back", "left", "right", "jump")
 MAX_TURN_DEG = 180.0  # the server's bound on yaw_deg and pitch_deg (docs/api.md)
@@ -83,6 +89,25 @@ class WorldPackEnv(gym.Env):
             info["psnr_db"], info["ssim"] = r.truth["psnr_db"], r.truth["ssim"]
         truncated = self.steps >= self.max_steps
         return {"frame": r.image, "pose": r.pose}, 0.0, False, truncated, info
+
+    def fork(self) -> "WorldPackEnv":
+        """An environment at this one's present, on a fork of its session: the same
+        frames, pose and step count, then steps of its own. Closing it deletes the fork."""
+        if self.session is None:
+            raise RuntimeError("call reset() before fork()")
+        other = WorldPackEnv(self.client, max_steps=self.max_steps, sampler_steps=self.sampler_steps,
+                             size=self.frame.shape[:2], biome=self.biome, render_mode=self.render_mode)
+        other.session = self.client.fork(self.session)
+        other.index, other.steps, other.frame = self.index, self.steps, self.frame.copy()
+        return other
+
+    def imagine(self, actions, **kwargs) -> Imagined:
+        """Rolls candidate futures out from the present without stepping: `actions[k]` is
+        a sequence of samples of `action_space`; the rest as `Client.imagine` takes it."""
+        if self.session is None:
+            raise RuntimeError("call reset() before imagine()")
+        kwargs.setdefault("steps", self.sampler_steps)
+        return self.client.imagine(self.session, [[to_request(a) for a in seq] for seq in actions], **kwargs)
 
     def render(self):
         return self.frame
