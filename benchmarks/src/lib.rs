@@ -2,6 +2,7 @@
 //! they print; the binary only parses flags and calls them.
 
 pub mod fork;
+pub mod imagine;
 pub mod parity;
 pub mod render;
 pub mod select;

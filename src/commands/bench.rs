@@ -150,6 +150,34 @@ pub enum Bench {
         #[arg(long)]
         json: bool,
     },
+    /// Imagined frames per second at K candidates: batched, each alone, and as forks stepped, with the cost by stage.
+    Imagine {
+        #[arg(long, default_value = "fixtures/variants/worldpack_geometry_fused_1step")]
+        model: PathBuf,
+        #[arg(long, default_value_t = 10, value_parser = clap::value_parser!(u64).range(1..=1000))]
+        steps: u64,
+        #[arg(long, default_value = "ddim")]
+        method: model::Method,
+        #[arg(long, default_value_t = true, action = clap::ArgAction::Set)]
+        covisible: bool,
+        /// Comma-separated numbers of candidates.
+        #[arg(long, value_delimiter = ',', default_value = "1,4,16", value_parser = clap::value_parser!(u64).range(1..=64))]
+        candidates: Vec<u64>,
+        /// Steps per candidate.
+        #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u64).range(1..=64))]
+        horizon: u64,
+        #[arg(long, default_value_t = 40, value_parser = clap::value_parser!(u64).range(1..=10_000))]
+        explore: u64,
+        #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u64).range(1..=100))]
+        rounds: u64,
+        #[arg(long, default_value = "cpu", value_parser = parse_provider)]
+        provider: model::Provider,
+        /// Intra-op threads per model call (pin the process to one core with `taskset -c 0` for a one-core figure).
+        #[arg(long, default_value_t = 1)]
+        threads: usize,
+        #[arg(long)]
+        json: bool,
+    },
     /// (internal) One layout's peak memory, in a process of its own.
     #[command(hide = true)]
     StepProbe {
@@ -183,6 +211,7 @@ impl Bench {
             Bench::Parity { .. } => "bench parity",
             Bench::Store { .. } => "bench store",
             Bench::Fork { .. } => "bench fork",
+            Bench::Imagine { .. } => "bench imagine",
             Bench::StepProbe { .. } => "bench step-probe",
             Bench::Render { .. } => "bench render",
         }
@@ -235,6 +264,13 @@ impl Bench {
             }
             Bench::Store { frames, json } => benchmarks::store::run(*frames as usize, *json),
             Bench::Fork { frames, forks, json } => benchmarks::fork::run(*frames as usize, *forks as usize, *json),
+            Bench::Imagine { model, steps, method, covisible, candidates, horizon, explore, rounds, provider, threads, json } => {
+                let runtime = model::RuntimeOptions { provider: *provider, threads: *threads };
+                let o = benchmarks::imagine::Options { steps: *steps as usize, method: *method, covisible: *covisible, explore: *explore as usize,
+                    horizon: *horizon as usize, rounds: *rounds as usize };
+                let ks: Vec<usize> = candidates.iter().map(|&k| k as usize).collect();
+                benchmarks::imagine::run(model, runtime, &o, &ks, *json)
+            }
             Bench::StepProbe { model, layout, provider, threads, calls } => {
                 benchmarks::step::probe(model, layout, model::RuntimeOptions { provider: *provider, threads: *threads }, *calls)
             }
