@@ -17,7 +17,7 @@ ROOT = Path(__file__).resolve().parent.parent
 BIN = os.environ.get("WORLDPACK_BIN", str(ROOT / "target" / "release" / "worldpack"))
 TINY = ["--set", "autoencoder.steps=4", "--set", "autoencoder.batch=4", "--set", "baseline.steps=4", "--set", "baseline.batch=4",
         "--set", "teacher.steps=4", "--set", "teacher.batch=4", "--set", "student.steps=2", "--set", "student.batch=2",
-        "--set", "heldout.share=0.25", "--set", "eval.limit=1"]
+        "--set", "heads.steps=3", "--set", "heads.batch=4", "--set", "heldout.share=0.25", "--set", "eval.limit=1"]
 
 
 def worldpack(*args, cwd=ROOT):
@@ -45,7 +45,7 @@ def test_every_stage_ran_and_the_lineage_names_them(trained):
     lineage = json.loads((out / "lineage.json").read_text())
     stages = lineage["stages"]
     assert list(stages) == ["check", "split", "from", "autoencoder", "baseline", "teacher", "student", "adversarial",
-                            "export", "parity", "eval", "card"]
+                            "heads", "export", "parity", "eval", "card"]
     assert all(s["status"] == "done" for n, s in stages.items() if n != "adversarial"), stages
     assert stages["adversarial"]["status"] == "skipped"  # a CPU run goes without the GPU-only stage
     assert len(stages["split"]["heldout"]) == 1 and stages["split"]["train_trajectories"] == 3
@@ -71,7 +71,7 @@ def test_a_second_run_resumes_and_trains_nothing_again(trained):
     data, out, _ = trained
     again = worldpack("train", "--data", data, "--out", out, "--from", "voxel")
     assert again.returncode == 0, again.stderr[-2000:]
-    assert again.stdout.count(": done (") == 10 and "skipped" in again.stdout
+    assert again.stdout.count(": done (") == 11 and "skipped" in again.stdout
 
 
 def test_serve_answers_a_step_with_the_model_it_made(trained, tmp_path):

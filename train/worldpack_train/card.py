@@ -4,6 +4,10 @@ settings. Nothing in it is typed by hand."""
 
 from __future__ import annotations
 
+import argparse
+import json
+from pathlib import Path
+
 # Rows of the held-out eval, in the order the card shows them, and what each is.
 ROWS = {
     "served_covisible": "this model, served (1 step, co-visible memory, fusion heads)",
@@ -95,3 +99,24 @@ def render(manifest: dict, settings: dict, lineage: dict) -> str:
             "new ground is its weakest stratum.",
             "- Figures are from one held-out split of the training data's own world; a new user's scenes may differ.", ""]
     return "\n".join(out)
+
+
+def report(results: Path) -> str:
+    """The card's tables for one `worldpack eval` results.json: the held-out suite, then each stratum."""
+    ev = summarise(json.loads(results.read_text()))
+    out = [f"`{ev['suite']}`: {ev['trajectories']} walks, {ev['return_frames']:,} generated frames", ""] + table(ev["rows"])
+    for name, s in ev["strata"].items():
+        if s["frames"]:
+            out += ["", f"{name} ({s['describe']}; {s['frames']:,} frames)", ""] + table(s["rows"])
+    return "\n".join(out)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description="Print the model card's eval tables for results.json files of `worldpack eval`")
+    ap.add_argument("results", type=Path, nargs="+")
+    for path in ap.parse_args().results:
+        print(report(path) + "\n")
+
+
+if __name__ == "__main__":
+    main()

@@ -20,6 +20,7 @@ import logging
 import os
 from pathlib import Path
 import shutil
+import signal
 import subprocess
 import sys
 import time
@@ -37,6 +38,7 @@ from .io.manifest import set_warp_frames
 from .stages.autoencoder import encode, train_autoencoder
 from .stages.denoiser import train_cdit
 from .stages.distill import distill
+from .stages import fusion
 from .stages.export import export
 from .stages.recover import recover
 
@@ -357,6 +359,29 @@ def student_stage(run: Run, minutes: float, adversarial: bool = False) -> dict:
     return {"steps_from": start, "final_step": final}
 
 
+def heads_stage(run: Run) -> dict:
+    """The fusion head on this world: the bare student's own frames beside their fused warp
+    (`worldpack fusion-data` on the training walks), a head trained on them from the family's
+    kept head, then the rule that takes the warp's detail where head and warp agree."""
+    w, h, fam = run.work, run.settings["heads"], run.settings["from"]
+    train_split, bare, folder = w / "data" / "train", w / "student-bare", w / "heads"
+    if not (bare / "manifest.json").exists():
+        export(w / "student", "worldpack", ["worldpack"], w / "data" / "heldout", bare, "cpu", True, distilled=1,
+               warp_data=(train_split,))
+        set_warp_frames(bare, run.settings["serving"]["warp_frames"])
+    if not (folder / "data" / "truth.npy").exists():
+        run.worldpack("fusion-data", "--suite", str(train_split), "--model", str(bare), "--stride", str(h["stride"]),
+                      "--threads", str(run.settings["threads"]), "--out", str(folder / "data"))
+    init = Path(fam["served"]) if fam and has_head(Path(fam["served"])) else None
+    fusion.train([folder / "data"], folder / "kept", h["steps"], h["batch"], h["lr"], h["minutes"], 24, edge_weight=1.0,
+                 init_from=init)
+    fusion.export(folder / "kept", bare, folder / "model", folder / "data")
+    if h["warp_detail"]:
+        fusion.pair(folder / "model", folder / "model", folder / "model", folder / "data", warp_detail=h["warp_detail"])
+    scores = json.loads((folder / "kept" / "fusion-held-out.json").read_text())["scores"]
+    return {"init_from": str(init) if init else None, "held_out": scores}
+
+
 def export_stage(run: Run) -> dict:
     w, out, fam = run.work, run.out, run.settings["from"]
     held, more = w / "data" / "heldout", (w / "data" / "train",)
@@ -364,10 +389,16 @@ def export_stage(run: Run) -> dict:
     export(w / "baseline", "baseline", ["baseline"], held, out / "baseline", "cpu", half, warp_data=more)
     export(w / "teacher", "worldpack", ["worldpack"], held, out / "teacher", "cpu", half, warp_data=more,
            fusion_from=Path(fam["teacher"]) if fam and has_head(Path(fam["teacher"])) else None)
-    # The served student keeps the family's fusion heads: they blend pixels, not latents.
-    export(w / "student", "worldpack", ["worldpack"], held, out, "cpu", half, distilled=1, warp_data=more,
-           fusion_from=Path(fam["served"]) if fam and has_head(Path(fam["served"])) else None)
-    set_warp_frames(out, run.settings["serving"]["warp_frames"])
+    # The served model: the student with the head trained on this world's frames.
+    served = w / "heads" / "model"
+    for p in served.iterdir():
+        if p.is_dir():
+            shutil.copytree(p, out / p.name, dirs_exist_ok=True)
+        else:
+            shutil.copy(p, out / p.name)
+    manifest = json.loads((out / "manifest.json").read_text())
+    manifest["name"] = out.name
+    (out / "manifest.json").write_text(json.dumps(manifest, indent=1))
     return {"outputs": {p: folder_digest(out / p) for p in ("baseline", "teacher")}}
 
 
@@ -474,11 +505,16 @@ def stages(run: Run, facts: dict) -> list:
         ("student", "the 1-step student distilled from it", lambda: student_stage(run, run.training_minutes("student"))),
         ("adversarial", "the student against a discriminator (GPU only)",
          lambda: adversarial_stage(run, run.training_minutes("student"))),
+        ("heads", "the fusion head retrained on this world's frames", lambda: heads_stage(run)),
         ("export", "ONNX graphs, manifests and references", lambda: export_stage(run)),
         ("parity", "ONNX Runtime against the PyTorch references", lambda: parity_stage(run)),
         ("eval", "rollouts on the held-out split", lambda: eval_stage(run)),
         ("card", "the model card (MODEL.md) and how it is served", lambda: card_stage(run)),
     ]
+
+
+def stop(signum, frame) -> None:
+    raise KeyboardInterrupt
 
 
 def make(data: Path, out: Path, source: str | None, hours: float | None, device: str | None, heldout: Path | None,
@@ -507,6 +543,7 @@ def make(data: Path, out: Path, source: str | None, hours: float | None, device:
     out.mkdir(parents=True, exist_ok=True)
     if not (out / "train.json").exists():
         (out / "train.json").write_text(json.dumps(settings, indent=2))
+    signal.signal(signal.SIGTERM, stop)
     with open(out / "train.log", "a") as log:
         sys.stdout, sys.stderr = Tee(sys.__stdout__, log), Tee(sys.__stderr__, log)
         try:
@@ -535,12 +572,18 @@ def drive(run: Run, facts: dict, notes: list[str]) -> None:
             print(f"[{i}/{len(plan)}] {name}: {record['status']} ({record['minutes']:.1f} min), kept", flush=True)
             continue
         budget = run.training_minutes(name) if name in TRAINING_STAGES else None
-        left = sum(run.training_minutes(n) for n in TRAINING_STAGES if run.stage(n)["status"] == "pending")
+        left = sum(run.training_minutes(n) for n in TRAINING_STAGES if run.stage(n)["status"] not in ("done", "skipped"))
         print(f"[{i}/{len(plan)}] {name}: {what}" + (f" (budget {budget:.0f} min)" if budget is not None else "")
               + f"; training left at most {left:.0f} min, {(time.time() - began) / 60:.0f} min so far", flush=True)
         t0 = time.time()
         try:
             result = work()
+        except KeyboardInterrupt:
+            # Stopped (Ctrl-C or SIGTERM): the minutes count against the stage's share when it resumes.
+            record["minutes"] += (time.time() - t0) / 60
+            record["status"] = "stopped"
+            run.save()
+            raise SystemExit(f"worldpack train: stopped in stage `{name}`; run the same command again to resume it")
         except (Exception, SystemExit) as e:
             if not isinstance(e, (StageFailed, SystemExit)):
                 traceback.print_exc()  # into the log: a fault of the trainer's, not of the input

@@ -33,13 +33,16 @@ DEFAULTS = {
     "device": "cpu",
     "hours": 2.0,            # the whole command's budget, data made beforehand not counted
     "threads": 1,            # torch threads for the training stages
-    "reserve_minutes": 15.0, # of --hours kept for the measured stages (export, parity, eval, card)
+    "reserve_minutes": 25.0, # of --hours kept for the measured stages (heads, export, parity, eval, card)
     "heldout": {"share": 0.1, "at_least": 1, "folder": None},
     "autoencoder": {"steps": 1500, "batch": 32, "lr": 3e-4},
     "baseline": {"steps": 3000, "batch": 32, "lr": 1e-4, "ema": 0.999},
     "teacher": {"steps": 4000, "batch": 32, "lr": 1e-4, "ema": 0.999, "memory_focus": 0.5,
                 "context_noise": 0.7, "generated_level": 0.3},
     "student": {"steps": 2000, "batch": 16, "lr": 1e-4, "ema": 0.998, "teacher_steps": 10},
+    # The fusion head retrained on the student's own frames of this world (MSE + edges, from the
+    # family's kept head), then the warp's luma detail taken where the two agree (T in 8-bit levels).
+    "heads": {"steps": 1500, "batch": 32, "lr": 1e-3, "stride": 2, "warp_detail": 2.0, "minutes": 8.0},
     # The adversarial term (ADD) only pays off with a GPU's throughput: skipped on CPU.
     "adversarial": {"weight": 0.5, "start": 200, "cap": 0.1},
     "serving": {"policy": "worldpack", "method": "ddim", "steps": 1, "covisible": True, "warp_frames": 32},

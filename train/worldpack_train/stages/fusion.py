@@ -310,7 +310,7 @@ def train(data: list[Path], run: Path, steps: int, batch: int, lr: float, minute
     weighs the regression terms where the warp landed: 0 trains a head
     whose frame is used in the holes only (`HeadPair`'s `holes`).
 
-    `init_from` (a run folder) starts a new run from that run's head, with a
+    `init_from` (a run folder, or a model folder: its kept head) starts a new run from that head, with a
     fresh optimiser: a pix2pix head fine-tuned from a regression one."""
     if not 0 <= landed_weight <= 1:
         raise SystemExit(f"--landed-weight: a weight in [0, 1]; got {landed_weight}")
@@ -330,7 +330,9 @@ def train(data: list[Path], run: Path, steps: int, batch: int, lr: float, minute
     ckpt = run / "fusion.pt"
     step = resume(ckpt, head, opt, "the fusion head", key="head")
     if init_from is not None and not step:
-        start, saved = trained_head(init_from)
+        # A model folder's kept head, or a fusion-train run's.
+        start, saved = ((head_of(init_from, "kept")[0], {"step": "exported"}) if (init_from / "manifest.json").exists()
+                        else trained_head(init_from))
         if architecture(start) != architecture(head):
             raise SystemExit(f"--init-from: {init_from}'s head is {architecture(start)}, not {architecture(head)}")
         head.load_state_dict(start.state_dict())
