@@ -55,14 +55,20 @@ fn policies() -> Vec<Policy> {
     out
 }
 
-fn check(walk: bool, seed: u64) {
+/// 160 poses of a loop or walk, their frames (two a time step, so times tie), and the generator, to draw on.
+fn workload(walk: bool, seed: u64) -> (Vec<(DVec3, f64, f64)>, Vec<MemoryFrame>, SplitMix64) {
     let mut rng = SplitMix64::new(seed);
     let poses = trajectory(&mut rng, 160, walk);
-    let frames: Vec<MemoryFrame> = poses
+    let frames = poses
         .iter()
         .enumerate()
         .map(|(t, &(p, y, pi))| MemoryFrame { id: 1000 + t as u64, time: t as u64 / 2, frustum: frustum(p, y, pi) })
         .collect();
+    (poses, frames, rng)
+}
+
+fn check(walk: bool, seed: u64) {
+    let (poses, frames, _) = workload(walk, seed);
     let mut memory = FrameMemory::new();
     let policies = policies();
     let mut previous: Vec<Option<ContextPlan>> = vec![None; policies.len()];
@@ -104,13 +110,7 @@ fn indexed_equals_brute_force_on_walks() {
 /// Every policy plans exactly what brute force over all the frames plans,
 /// warm and cold, and the stack lists its frames as one memory would.
 fn check_stack(walk: bool, seed: u64) {
-    let mut rng = SplitMix64::new(seed);
-    let poses = trajectory(&mut rng, 160, walk);
-    let frames: Vec<MemoryFrame> = poses
-        .iter()
-        .enumerate()
-        .map(|(t, &(p, y, pi))| MemoryFrame { id: 1000 + t as u64, time: t as u64 / 2, frustum: frustum(p, y, pi) })
-        .collect();
+    let (poses, frames, mut rng) = workload(walk, seed);
     let mut layers: Vec<FrameMemory> = vec![FrameMemory::new()];
     let mut whole = FrameMemory::new();
     let policies = policies();
