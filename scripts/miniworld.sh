@@ -7,6 +7,8 @@
 #   ./scripts/miniworld.sh eval SUITE   # the served configuration against the model it started from, its own
 #                                    # baseline and the references, paired (MODEL: runs/mw; THREADS: 2)
 #   ./scripts/miniworld.sh walk      # a REST walk of a held-out ABCA walk through the Python client -> docs/miniworld/
+#   ./scripts/miniworld.sh ship      # the served model and its card into fixtures/miniworld/geometry_fused, the card
+#                                    # with the held-out suites' tables (from runs/mw-eval/*/results.json)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bin=target/release/worldpack
@@ -43,5 +45,21 @@ case "${1:-}" in
     sleep 2
     .venv/bin/python clients/python/examples/suite_walk.py --url http://127.0.0.1:18180 --suite data/mw-test-abca \
       --index "${INDEX:-0}" --out docs/miniworld/rest_walk.png ;;
-  *) sed -n '2,11p' "$0"; exit 2 ;;
+  ship)
+    dst=fixtures/miniworld/geometry_fused
+    rm -rf "$dst" && mkdir -p "$dst"
+    cp "$model"/{manifest.json,denoiser.weights,MODEL.md,heldout-strip.png,train.json,lineage.json} "$model"/*.onnx "$dst"/
+    cp -r "$model/reference" "$dst"/
+    # Paths of this checkout become the repository's.
+    sed -i "s#$PWD/##g" "$dst"/{train.json,lineage.json,MODEL.md}
+    # The folder's name is the model's (as export names it).
+    .venv/bin/python -c "import json, sys; p = sys.argv[1] + '/manifest.json'; m = json.load(open(p)); m['name'] = 'geometry_fused'; json.dump(m, open(p, 'w'), indent=1)" "$dst"
+    sed -i "1s/.*/# geometry_fused (MiniWorld)/" "$dst/MODEL.md"
+    { echo; echo "## On the held-out suites"; echo
+      echo "Walks in world seeds (and, for YMaze, an environment) never trained on: \`./scripts/miniworld.sh eval data/mw-test-aba\`"
+      echo "and \`... data/mw-test-abca\`. The baseline row is this model's own 4-frame baseline."; echo
+      .venv/bin/python -m worldpack_train.card runs/mw-eval/mw-test-aba/results.json runs/mw-eval/mw-test-abca/results.json
+    } >> "$dst/MODEL.md"
+    du -sh "$dst" ;;
+  *) sed -n '2,13p' "$0"; exit 2 ;;
 esac

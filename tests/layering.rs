@@ -66,10 +66,14 @@ fn workspace_dependencies(krate: &str, members: &[String]) -> BTreeSet<String> {
     found
 }
 
-/// The modules of one source folder (its top-level files and folders) and the
-/// other top-level modules each one names through `crate::`.
+/// The modules of one source folder (its top-level files and folders, and the crate root
+/// `lib` or `main`) and the other top-level modules each one names: through `crate::`,
+/// through `super::` chains that climb to the root, and, in the root, as `module::`. A name
+/// the root re-exports (`pub use module::Name`) counts as its module's, so only items the
+/// root itself defines make a module depend on the root.
 fn module_imports(src: &Path) -> BTreeMap<String, BTreeSet<String>> {
-    let top = |p: &Path| p.strip_prefix(src).unwrap().components().next().unwrap().as_os_str().to_string_lossy().trim_end_matches(".rs").to_string();
+    let relative = |p: &Path| p.strip_prefix(src).unwrap().with_extension("");
+    let top = |p: &Path| relative(p).components().next().unwrap().as_os_str().to_string_lossy().to_string();
     let mut files = Vec::new();
     let mut stack = vec![src.to_path_buf()];
     while let Some(dir) = stack.pop() {
@@ -82,18 +86,28 @@ fn module_imports(src: &Path) -> BTreeMap<String, BTreeSet<String>> {
             }
         }
     }
-    let modules: BTreeSet<String> = files.iter().map(|f| top(f)).filter(|m| m != "lib" && m != "main").collect();
+    let root_name = if src.join("lib.rs").exists() { "lib" } else { "main" };
+    let modules: BTreeSet<String> = files.iter().map(|f| top(f)).collect();
+    let reexported = reexports(&read(&src.join(format!("{root_name}.rs"))), &modules);
+    let owner = |name: &str| if modules.contains(name) && name != root_name { name.to_string() } else { reexported.get(name).cloned().unwrap_or(root_name.to_string()) };
     let mut imports: BTreeMap<String, BTreeSet<String>> = modules.iter().map(|m| (m.clone(), BTreeSet::new())).collect();
     for file in &files {
         let from = top(file);
-        if !modules.contains(&from) {
-            continue;
-        }
+        let rel = relative(file);
+        // How deep the file's module sits: the root 0, src/x.rs and src/x/mod.rs 1, src/x/y.rs 2.
+        let depth = if from == root_name { 0 } else { rel.components().count() - usize::from(rel.ends_with("mod")) };
         for line in read(file).lines() {
             let code = line.find("//").filter(|&i| i == 0 || line[..i].ends_with(' ')).map_or(line, |i| &line[..i]);
-            for named in names_after_crate(code) {
-                if named != from && modules.contains(&named) {
-                    imports.get_mut(&from).unwrap().insert(named);
+            let mut named = names_after(code, "crate::");
+            named.extend(names_after_super(code, depth));
+            // A root's `pub use` re-exports: the names count as their modules' (above), not as the root's own use.
+            if from == root_name && !code.trim_start().starts_with("pub use") {
+                named.extend(paths_from_root(code).into_iter().filter(|n| modules.contains(n)));
+            }
+            for name in named.iter().filter(|n| !n.is_empty()) {
+                let to = owner(name);
+                if to != from {
+                    imports.get_mut(&from).unwrap().insert(to);
                 }
             }
         }
@@ -101,17 +115,73 @@ fn module_imports(src: &Path) -> BTreeMap<String, BTreeSet<String>> {
     imports
 }
 
+/// `use module::{A, B}` and `pub use module::A` lines of a crate root (what `crate::A`
+/// reaches from anywhere in the crate): name -> module.
+fn reexports(root: &str, modules: &BTreeSet<String>) -> BTreeMap<String, String> {
+    let mut out = BTreeMap::new();
+    for line in root.lines().map(str::trim).filter(|l| l.starts_with("pub use ") || l.starts_with("use ")) {
+        let path = line.trim_start_matches("pub ").trim_start_matches("use ").trim_start_matches("crate::").trim_end_matches(';');
+        let Some((module, rest)) = path.split_once("::") else { continue };
+        if modules.contains(module) {
+            for name in names_after(&format!("x::{rest}"), "x::") {
+                out.insert(name, module.to_string());
+            }
+        }
+    }
+    out
+}
+
 /// What `crate::x` and `use crate::{x, y::z}` name first, in one line of code.
 fn names_after_crate(code: &str) -> Vec<String> {
+    names_after(code, "crate::")
+}
+
+/// The first names after each `prefix` in a line: `prefix x` and `prefix {x, y::z}`.
+fn names_after(code: &str, prefix: &str) -> Vec<String> {
     let ident = |s: &str| s.chars().take_while(|c| c.is_alphanumeric() || *c == '_').collect::<String>();
     let mut names = Vec::new();
-    for (i, _) in code.match_indices("crate::") {
-        let rest = &code[i + "crate::".len()..];
+    for (i, _) in code.match_indices(prefix) {
+        if prefix == "super::" && code[..i].ends_with("super::") {
+            continue;
+        }
+        let rest = &code[i + prefix.len()..];
         if let Some(group) = rest.strip_prefix('{') {
             let group = &group[..group.find('}').unwrap_or(group.len())];
             names.extend(group.split(',').map(|item| ident(item.trim())));
         } else {
             names.push(ident(rest));
+        }
+    }
+    names
+}
+
+/// The names `super::` chains reach at the crate root from a module `depth` deep.
+fn names_after_super(code: &str, depth: usize) -> Vec<String> {
+    let mut names = Vec::new();
+    for (i, _) in code.match_indices("super::") {
+        if code[..i].ends_with("super::") {
+            continue; // counted from the chain's first `super::`
+        }
+        let (mut climbs, mut rest) = (0, &code[i..]);
+        while let Some(after) = rest.strip_prefix("super::") {
+            climbs += 1;
+            rest = after;
+        }
+        if climbs == depth {
+            names.extend(names_after(&format!("x::{rest}"), "x::").into_iter().take(if rest.starts_with('{') { usize::MAX } else { 1 }));
+        }
+    }
+    names
+}
+
+/// The crate root's own paths that start with a name: `name::...` not after another `::`.
+fn paths_from_root(code: &str) -> Vec<String> {
+    let mut names = Vec::new();
+    for (i, _) in code.match_indices("::") {
+        let before = &code[..i];
+        let start = before.rfind(|c: char| !(c.is_alphanumeric() || c == '_')).map_or(0, |j| j + 1);
+        if start == 0 || !before[..start].ends_with("::") {
+            names.push(before[start..].to_string());
         }
     }
     names
@@ -177,6 +247,11 @@ fn the_checks_see_a_circle_and_a_forbidden_dependency() {
     // The scanner on code it must catch, so the two tests above cannot pass by seeing nothing.
     assert_eq!(names_after_crate("use crate::{graph::Tensor, error::ModelError};"), ["graph", "error"]);
     assert_eq!(names_after_crate("let x = crate::manifest::load(p);"), ["manifest"]);
+    assert_eq!(names_after_super("use super::super::{engine, Config};", 2), ["engine", "Config"]);
+    assert!(names_after_super("use super::St;", 2).is_empty(), "one level up from depth 2 is not the root");
+    assert_eq!(paths_from_root("let m = predict::run(model::x);"), ["predict", "model"]);
+    let modules: BTreeSet<String> = ["overlap", "lib"].map(String::from).into();
+    assert_eq!(reexports("pub use overlap::{Frustum, overlap_score};", &modules)["Frustum"], "overlap");
     let imports: BTreeMap<String, BTreeSet<String>> = [("graph", vec!["manifest"]), ("manifest", vec!["graph"]), ("error", vec![])]
         .into_iter()
         .map(|(m, to)| (m.to_string(), to.into_iter().map(String::from).collect()))
