@@ -265,3 +265,24 @@ def test_the_environment_forks_and_imagines(server):
     assert env.client.session(env.session)["frames"] == env.index == branch.index
     branch.close()
     env.close()
+
+
+def test_the_planning_example_runs_episodes_and_compares_them(server, tmp_path):
+    """clients/python/examples/plan_to_goal.py end to end on the small model: a planner and
+    a random policy over the same two episodes (a goal seen, a goal not), then compared."""
+    import json
+    import sys
+
+    example = ROOT / "clients" / "python" / "examples" / "plan_to_goal.py"
+    common = ["--url", server, "--episodes", "2", "--max-steps", "2", "--out-steps", "2", "--candidates", "2", "--horizon", "1", "--iterations", "1"]
+    for policy in ("model", "random"):
+        out = subprocess.run([sys.executable, str(example), *common, "--policy", policy, "--label", policy, "--out", str(tmp_path / f"{policy}.json")],
+                             capture_output=True, text=True, timeout=600)
+        assert out.returncode == 0, out.stderr[-3000:]
+        run = json.loads((tmp_path / f"{policy}.json").read_text())
+        assert [e["goal_seen"] for e in run["episodes"]] == [True, False]
+        for e in run["episodes"]:
+            assert e["steps"] <= 2 and e["final_blocks"] >= 0 and isinstance(e["success"], bool), e
+    out = subprocess.run([sys.executable, str(example), "--compare", str(tmp_path / "model.json"), str(tmp_path / "random.json")],
+                         capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0 and "paired over 2 episodes" in out.stdout, out.stdout + out.stderr
