@@ -6,6 +6,7 @@ pub mod aba_demo;
 pub mod digest;
 pub mod evaluate;
 pub mod features;
+pub mod geometry_requests;
 pub mod memory_probe;
 pub mod metrics;
 pub mod noise;
