@@ -52,7 +52,9 @@ def test_every_stage_ran_and_the_lineage_names_them(trained):
     assert stages["check"]["data"]["digest"] and stages["from"]["digests"]["served"]
     assert max(stages["parity"]["tolerance_used"].values()) <= 1.0
     settings = json.loads((out / "train.json").read_text())
-    assert settings["teacher"]["steps"] == 4 and settings["from"]["served"].endswith("worldpack_geometry_fused_1step")
+    assert settings["teacher"]["steps"] == 4
+    # The shipped family by its place in the repository, not this machine's path.
+    assert settings["from"]["served"] == "fixtures/variants/worldpack_geometry_fused_1step"
 
 
 def test_the_card_carries_the_heldout_eval_and_how_it_is_served(trained):

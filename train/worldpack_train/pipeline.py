@@ -524,16 +524,16 @@ def make(data: Path, out: Path, source: str | None, hours: float | None, device:
         settings = json.loads((out / "train.json").read_text())
         asked = {"hours": hours, "device": device}
         changed = {k: v for k, v in asked.items() if v is not None and v != settings[k]}
-        if changed or (source and settings["from"] != wsettings.family(source, repo)):
+        if changed or (source and not wsettings.same_family(settings["from"], wsettings.family(source, repo))):
             raise SystemExit(f"--out: {out} was started with other settings ({changed or '--from'}); run the same "
                              "command to resume it, or choose another --out")
-        if settings.get("data") != str(data):
+        if Path(settings.get("data", "")).resolve() != data:
             raise SystemExit(f"--data: {out} was trained on {settings.get('data')}, not {data}")
     else:
         settings = wsettings.initial(source, 2.0 if hours is None else hours, device or "cpu", repo, overrides)
-        settings["data"] = str(data)
+        settings["data"] = os.path.relpath(data)
         if heldout is not None:
-            settings["heldout"]["folder"] = str(heldout.resolve())
+            settings["heldout"]["folder"] = os.path.relpath(heldout)
         wsettings.check(settings)
         if out.exists() and any(out.iterdir()):
             raise SystemExit(f"--out: {out} is not empty and holds no train.json; choose a new folder")
@@ -557,7 +557,7 @@ def drive(run: Run, facts: dict, notes: list[str]) -> None:
     # The ONNX exporter's note, at every export, that torchvision's operators are not registered.
     logging.getLogger("torch.onnx._internal.exporter._registration").setLevel(logging.ERROR)
     checked = run.stage("check")  # first: it ran before anything was written
-    checked.update(status="done", data={"suite": str(run.data), "digest": suite_digest(run.data),
+    checked.update(status="done", data={"suite": os.path.relpath(run.data), "digest": suite_digest(run.data),
                                         **{k: facts[k] for k in ("trajectories", "frames", "kind", "focal")}}, notes=notes)
     run.save()
     for line in notes:

@@ -8,6 +8,7 @@ from __future__ import annotations
 import copy
 import hashlib
 import json
+import os
 from pathlib import Path
 
 FORMAT = "worldpack-train/1"
@@ -68,7 +69,12 @@ def merge(base: dict, over: dict) -> dict:
 def family(source: str, root: Path) -> dict:
     """`--from voxel|doom` or a model folder the trainer wrote (its teacher/ and baseline/ beside it)."""
     if source in FAMILIES:
-        return {k: str(root / v) for k, v in FAMILIES[source].items()}
+        missing = [v for v in FAMILIES[source].values() if not (root / v / "manifest.json").exists()]
+        if missing:
+            raise SystemExit(f"--from {source}: no model at {root / missing[0]}; run from the repository's root")
+        # Relative to where the command runs (the repository), so that train.json and the card
+        # name the shipped folders, not this machine's paths.
+        return {k: os.path.relpath(root / v) for k, v in FAMILIES[source].items()}
     served = Path(source)
     if not (served / "manifest.json").exists():
         raise SystemExit(f"--from: {source} is neither a shipped family ({', '.join(FAMILIES)}) nor a model folder")
@@ -86,6 +92,12 @@ def initial(source: str | None, hours: float, device: str, root: Path, overrides
     else:
         s["from"] = family(source, root)
     return merge(s, overrides or {})
+
+
+def same_family(a: dict | None, b: dict | None) -> bool:
+    """Two families name the same folders, however their paths are written."""
+    resolved = lambda f: None if f is None else {k: str(Path(v).resolve()) for k, v in f.items()}
+    return resolved(a) == resolved(b)
 
 
 def digest(obj) -> str:
