@@ -521,7 +521,8 @@ def make(data: Path, out: Path, source: str | None, hours: float | None, device:
          binary: Path, repo: Path, overrides: dict | None = None) -> None:
     data = data.resolve()
     if (out / "train.json").exists():
-        settings = json.loads((out / "train.json").read_text())
+        # Settings a newer trainer added take their defaults; train.json is rewritten with them below.
+        settings = wsettings.merge(wsettings.DEFAULTS, json.loads((out / "train.json").read_text()))
         asked = {"hours": hours, "device": device}
         changed = {k: v for k, v in asked.items() if v is not None and v != settings[k]}
         if changed or (source and not wsettings.same_family(settings["from"], wsettings.family(source, repo))):
@@ -541,8 +542,7 @@ def make(data: Path, out: Path, source: str | None, hours: float | None, device:
     notes = check_family(settings, facts["focal"])
     # Nothing is written before the checks pass.
     out.mkdir(parents=True, exist_ok=True)
-    if not (out / "train.json").exists():
-        (out / "train.json").write_text(json.dumps(settings, indent=2))
+    (out / "train.json").write_text(json.dumps(settings, indent=2))
     signal.signal(signal.SIGTERM, stop)
     with open(out / "train.log", "a") as log:
         sys.stdout, sys.stderr = Tee(sys.__stdout__, log), Tee(sys.__stderr__, log)
