@@ -21,7 +21,7 @@ from worldpack_train.core.diffusion import Sampler, Schedule, sample
 MODEL = ROOT / "fixtures" / "small"
 MANIFEST = json.loads((MODEL / "manifest.json").read_text())
 # The trained voxel-world variants and the Doom models (float16-stored weights), checked graph by graph too.
-VARIANTS = sorted(p.parent for world in ("variants", "doom") for p in (ROOT / "fixtures" / world).glob("*/manifest.json"))
+VARIANTS = sorted(p.parent for world in ("variants", "doom", "miniworld") for p in (ROOT / "fixtures" / world).glob("*/manifest.json"))
 TOL = MANIFEST["reference"]["tolerance"]
 
 
