@@ -1,6 +1,7 @@
 """The Python client and the Gymnasium environment (clients/python) against
 a real `worldpack serve` on loopback: no mock anywhere."""
 
+import json
 import os
 import socket
 import subprocess
@@ -21,9 +22,10 @@ ROOT = Path(__file__).resolve().parent.parent
 BIN = os.environ.get("WORLDPACK_BIN", str(ROOT / "target" / "release" / "worldpack"))
 
 
-def start(tmp, *flags, env=None):
-    """A server on a free port; the small test model unless `flags` name another."""
-    if "--model" not in flags:
+def start(tmp, *flags, env=None, bare=False):
+    """A server on a free port; the small test model unless `flags` name another (or, with
+    `bare`, whatever `worldpack serve` serves without --model)."""
+    if "--model" not in flags and not bare:
         flags = ("--model", "fixtures/small", *flags)
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
@@ -51,6 +53,21 @@ def server(tmp_path_factory):
     yield url
     proc.terminate()
     proc.wait(timeout=30)
+
+
+def test_a_bare_serve_serves_the_served_model_as_its_manifest_says(tmp_path):
+    proc, url = start(tmp_path, bare=True)
+    try:
+        health = json.load(urllib.request.urlopen(url + "/v1/health"))
+        assert health["model"] == "worldpack_geometry_fused_1step", health
+        client = Client(url)
+        session = client.create_session(synthetic_seed=3)
+        step = client.step(session, {"forward": True, "yaw_deg": 6})
+        # The manifest's serving block: the 1-step student, its warp chosen by co-visibility.
+        assert step.raw["steps"] == 1 and step.raw["selection"]["warp_frames"], step.raw["selection"]
+    finally:
+        proc.terminate()
+        proc.wait(timeout=30)
 
 
 def test_gymnasium_check_env_passes(server):
