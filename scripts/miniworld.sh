@@ -53,7 +53,8 @@ case "${1:-}" in
     # Paths of this checkout become the repository's.
     sed -i "s#$PWD/##g" "$dst"/{train.json,lineage.json,MODEL.md}
     # The folder's name is the model's (as export names it).
-    .venv/bin/python -c "import json, sys; p = sys.argv[1] + '/manifest.json'; m = json.load(open(p)); m['name'] = 'geometry_fused'; json.dump(m, open(p, 'w'), indent=1)" "$dst"
+    .venv-train/bin/python -c "import sys; from pathlib import Path; from worldpack_train.pipeline import rename_model
+rename_model(Path(sys.argv[1]), sys.argv[2], 'geometry_fused')" "$dst" "$(basename "$model")"
     sed -i "1s/.*/# geometry_fused (MiniWorld)/" "$dst/MODEL.md"
     { echo; echo "## On the held-out suites"; echo
       echo "Walks in world seeds (and, for YMaze, an environment) never trained on: \`./scripts/miniworld.sh eval data/mw-test-aba\`"

@@ -2,24 +2,11 @@
 client's examples score with) against the Rust ones `eval` reports (`worldpack compare`):
 PSNR, its 100 dB cap for identical frames, and the sharpness ratio, including a flat truth."""
 
-import json
-import os
-import subprocess
-
 import cv2
 import numpy as np
 import pytest
+from test_metrics_opencv import compare
 from worldpack_train import metrics
-
-BIN = os.environ.get("WORLDPACK_BIN", os.path.join(os.path.dirname(__file__), "..", "target", "release", "worldpack"))
-
-
-def compare(tmp_path, predicted, truth):
-    pa, pb = tmp_path / "a.png", tmp_path / "b.png"
-    cv2.imwrite(str(pa), cv2.cvtColor(predicted, cv2.COLOR_RGB2BGR))
-    cv2.imwrite(str(pb), cv2.cvtColor(truth, cv2.COLOR_RGB2BGR))
-    out = subprocess.run([BIN, "compare", str(pa), str(pb)], capture_output=True, text=True, check=True)
-    return json.loads(out.stdout)
 
 
 def pairs():

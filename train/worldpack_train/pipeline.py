@@ -396,10 +396,18 @@ def export_stage(run: Run) -> dict:
             shutil.copytree(p, out / p.name, dirs_exist_ok=True)
         else:
             shutil.copy(p, out / p.name)
-    manifest = json.loads((out / "manifest.json").read_text())
-    manifest["name"] = out.name
-    (out / "manifest.json").write_text(json.dumps(manifest, indent=1))
+    rename_model(out, served.name, out.name)
     return {"outputs": {p: folder_digest(out / p) for p in ("baseline", "teacher")}}
+
+
+def rename_model(folder: Path, old: str, new: str) -> None:
+    """A model folder's name in its manifest, and where its head pair names itself."""
+    manifest = json.loads((folder / "manifest.json").read_text())
+    manifest["name"] = new
+    for part in manifest.get("fusion", {}).get("pair", {}).values():
+        if isinstance(part, dict) and part.get("model") == old:
+            part["model"] = new
+    (folder / "manifest.json").write_text(json.dumps(manifest, indent=1))
 
 
 def has_head(model: Path) -> bool:
