@@ -506,7 +506,7 @@ def stages(run: Run, facts: dict) -> list:
     return [
         ("split", "a held-out split and the memory plans", lambda: split_stage(run)),
         ("from", "the starting weights", lambda: from_stage(run, f)),
-        ("autoencoder", "the autoencoder fine-tuned on these frames, then the latent cache",
+        ("autoencoder", "the autoencoder trained on these frames (from the family's, if any), then the latent cache",
          lambda: autoencoder_stage(run, run.training_minutes("autoencoder"))),
         ("baseline", "the 4-frame baseline", lambda: baseline_stage(run, f, run.training_minutes("baseline"))),
         ("teacher", "WorldPack with the warp input (10 DDIM steps)", lambda: teacher_stage(run, f, run.training_minutes("teacher"))),
