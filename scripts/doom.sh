@@ -22,7 +22,7 @@ cd "$(dirname "$0")/.."
 threads="${THREADS:-1}"
 run=runs/doom
 bin=target/release/worldpack
-doom() { (cd doom && PYTHONPATH=. ../.venv-train/bin/python -m worldpack_doom "$@"); }
+doom() { (cd doom && PYTHONPATH=.:../train ../.venv-train/bin/python -m worldpack_doom "$@"); }
 recipe=(--context-noise 0.7 --generated-level 0.3)
 minutes=(${MINUTES:+--minutes "$MINUTES"})
 

@@ -13,7 +13,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 bin=target/release/worldpack
 model="${MODEL:-runs/mw}"
-mw() { (cd miniworld && PYTHONPATH=. ../.venv/bin/python -m worldpack_miniworld "$@"); }
+mw() { (cd miniworld && PYTHONPATH=.:../train ../.venv/bin/python -m worldpack_miniworld "$@"); }
 suite() {  # suite DIR ARGS...: made once, then checked and planned
   local dir=$1; shift
   [ -f "$dir/index.json" ] || mw suite "$@" --out "../$dir"

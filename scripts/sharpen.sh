@@ -20,7 +20,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 threads="${THREADS:-1}"
 bin=target/release/worldpack
-doom() { (cd doom && PYTHONPATH=. ../.venv-train/bin/python -m worldpack_doom "$@"); }
+doom() { (cd doom && PYTHONPATH=.:../train ../.venv-train/bin/python -m worldpack_doom "$@"); }
 minutes=(${MINUTES:+--minutes "$MINUTES"})
 
 world="${2:-}"

@@ -11,6 +11,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 from tqdm import tqdm
+from worldpack_train.io.suite import walk_actions, write_trajectory
 
 from . import engine as E
 from .walk import TASKS, TURN_STEP, WALK_STEP, Geometry, Plan, start_points
@@ -53,20 +54,9 @@ def render(engine: E.Engine, plan: Plan) -> dict:
         rgb.append(f)
         depth.append(d)
         poses.append(E.map_to_world(view.c2m()))
-    actions = np.zeros((len(poses), 7), np.float32)
-    actions[:, 0] = plan.forward
-    actions[:, 5] = plan.yaw
-    actions[0] = 0.0
-    return {"rgb": np.stack(rgb), "depth": np.stack(depth), "poses": np.stack(poses), "actions": actions,
+    return {"rgb": np.stack(rgb), "depth": np.stack(depth), "poses": np.stack(poses),
+            "actions": walk_actions(plan.forward, plan.yaw),
             "phase": np.array(plan.phase, np.uint8)}
-
-
-def write_trajectory(root: Path, name: str, arrays: dict, meta: dict) -> None:
-    d = root / name
-    d.mkdir(parents=True, exist_ok=True)
-    for key, value in arrays.items():
-        np.save(d / f"{key}.npy", value)
-    (d / "meta.json").write_text(json.dumps(meta, indent=1))
 
 
 def write_map(out: Path, split: str, map_name: str, count: int, ranges_m: list[float], seed: int,

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 from tqdm import tqdm
+from worldpack_train.io.suite import walk_actions, write_trajectory
 
 from . import engine as E
 from .walk import CLEARANCE, MAX_STEER, TASKS, TURN_STEP, WALK_STEP, FloorPlan
@@ -59,20 +60,9 @@ def render(engine: E.Engine, plan) -> dict:
         rgb.append(f)
         depth.append(d)
         poses.append(E.camera_to_world(p[0], p[1], h))
-    actions = np.zeros((len(poses), 7), np.float32)
-    actions[:, 0] = plan.forward
-    actions[:, 5] = plan.yaw
-    actions[0] = 0.0
-    return {"rgb": np.stack(rgb), "depth": np.stack(depth), "poses": np.stack(poses), "actions": actions,
+    return {"rgb": np.stack(rgb), "depth": np.stack(depth), "poses": np.stack(poses),
+            "actions": walk_actions(plan.forward, plan.yaw),
             "phase": np.array(plan.phase, np.uint8)}
-
-
-def write_trajectory(root: Path, name: str, arrays: dict, meta: dict) -> None:
-    d = root / name
-    d.mkdir(parents=True, exist_ok=True)
-    for key, value in arrays.items():
-        np.save(d / f"{key}.npy", value)
-    (d / "meta.json").write_text(json.dumps(meta, indent=1))
 
 
 def _miniworld_version() -> str:
