@@ -23,9 +23,9 @@ BIN = os.environ.get("WORLDPACK_BIN", str(ROOT / "target" / "release" / "worldpa
 
 
 def start(tmp, *flags, env=None, bare=False):
-    """A server on a free port; the small test model unless `flags` name another (or, with
-    `bare`, whatever `worldpack serve` serves without --model)."""
-    if "--model" not in flags and not bare:
+    """A server on a free port; the small test model unless `flags` name another or serve
+    memory only (or, with `bare`, whatever `worldpack serve` serves without --model)."""
+    if "--model" not in flags and "--memory-only" not in flags and not bare:
         flags = ("--model", "fixtures/small", *flags)
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))

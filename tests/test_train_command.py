@@ -76,6 +76,17 @@ def test_a_second_run_resumes_and_trains_nothing_again(trained):
     assert again.stdout.count(": done (") == 11 and "skipped" in again.stdout
 
 
+def test_a_resume_may_change_the_budget_but_not_the_device(trained):
+    data, out, _ = trained
+    hours = json.loads((out / "train.json").read_text())["hours"]
+    longer = worldpack("train", "--data", data, "--out", out, "--from", "voxel", "--hours", hours + 1)
+    assert longer.returncode == 0, longer.stderr[-2000:]
+    assert "the budget changes" in longer.stdout
+    assert json.loads((out / "train.json").read_text())["hours"] == hours + 1
+    other = worldpack("train", "--data", data, "--out", out, "--from", "voxel", "--device", "cuda")
+    assert other.returncode != 0 and "'device'" in other.stderr
+
+
 def test_serve_answers_a_step_with_the_model_it_made(trained, tmp_path):
     _, out, _ = trained
     proc, url = start(tmp_path, "--model", str(out))

@@ -531,8 +531,13 @@ def make(data: Path, out: Path, source: str | None, hours: float | None, device:
     if (out / "train.json").exists():
         # Settings a newer trainer added take their defaults; train.json is rewritten with them below.
         settings = wsettings.merge(wsettings.DEFAULTS, json.loads((out / "train.json").read_text()))
-        asked = {"hours": hours, "device": device}
-        changed = {k: v for k, v in asked.items() if v is not None and v != settings[k]}
+        # The budget may change on a resume: stages not yet done share the new one.
+        if hours is not None and hours != settings["hours"]:
+            print(f"the budget changes from {settings['hours']} h to {hours} h; stages not yet done take their "
+                  "shares of the new one")
+            settings["hours"] = hours
+            wsettings.check(settings)
+        changed = {"device": device} if device is not None and device != settings["device"] else {}
         if changed or (source and not wsettings.same_family(settings["from"], wsettings.family(source, repo))):
             raise SystemExit(f"--out: {out} was started with other settings ({changed or '--from'}); run the same "
                              "command to resume it, or choose another --out")
