@@ -37,6 +37,20 @@ pub struct OwnedWarp {
     pub intrinsics: Intrinsics,
 }
 
+impl OwnedWarp {
+    /// `w` at the model's frame size: a client's frames of another size are
+    /// resampled (`model::warp::resampled`), the model's own are copied.
+    pub fn at_model_size(w: &WarpSource, m: &Model) -> Result<OwnedWarp, ModelError> {
+        let image = &m.manifest().image;
+        let (width, height) = (image.width as u32, image.height as u32);
+        if (w.intrinsics.width, w.intrinsics.height) == (width, height) {
+            return Ok(OwnedWarp { rgb: w.rgb.to_vec(), depth_mm: w.depth_mm.to_vec(), pose: *w.pose, intrinsics: *w.intrinsics });
+        }
+        let (rgb, depth_mm, intrinsics) = model::warp::resampled(w, width, height)?;
+        Ok(OwnedWarp { rgb, depth_mm, pose: *w.pose, intrinsics })
+    }
+}
+
 /// One step's model call.
 pub struct Item {
     pub plan: ContextPlan,

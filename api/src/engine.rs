@@ -275,7 +275,7 @@ pub(crate) fn prepare(m: &Model, t: &Timeline, action: &Action, pose: Option<Pos
         target_pose: pose,
         action: action.to_vector().to_vec(),
         seed: seed.unwrap_or(time),
-        warp: warp.iter().map(|w| OwnedWarp { rgb: w.rgb.to_vec(), depth_mm: w.depth_mm.to_vec(), pose: *w.pose, intrinsics: *w.intrinsics }).collect(),
+        warp: warp.iter().map(|w| OwnedWarp::at_model_size(w, m)).collect::<Result<_, _>>()?,
         frames: plan
             .selected()
             .filter_map(|(_, f)| {

@@ -81,9 +81,16 @@ pub fn frame_to_tensor(rgb: &[u8], width: u32, height: u32, k: &Intrinsics, out_
         return Err(ModelError::input("intrinsics", format!("are for {}x{}, the image is {width}x{height}", k.width, k.height)));
     }
     let k2 = k.resized(out_w, out_h).map_err(|e| ModelError::input("intrinsics", e.to_string()))?;
-    let (w, h, ow, oh) = (width as usize, height as usize, out_w as usize, out_h as usize);
+    let (ow, oh) = (out_w as usize, out_h as usize);
     let mut data = vec![0.0f32; 3 * ow * oh];
-    // Pixel centres map to pixel centres (OpenCV's convention, as Intrinsics::resized).
+    bilinear(rgb, width as usize, height as usize, ow, oh, |u, v, c, value| data[(c * oh + v) * ow + u] = (value / 127.5 - 1.0) as f32);
+    Ok((Tensor::new(vec![1, 3, oh, ow], data), k2))
+}
+
+/// Samples an RGB image of `w × h` at `ow × oh` bilinearly, pixel centres to
+/// pixel centres (OpenCV's convention, as `Intrinsics::resized`), handing each
+/// output pixel's channel value (0–255) to `put(u, v, channel, value)`.
+pub(crate) fn bilinear(rgb: &[u8], w: usize, h: usize, ow: usize, oh: usize, mut put: impl FnMut(usize, usize, usize, f64)) {
     let (sx, sy) = (w as f64 / ow as f64, h as f64 / oh as f64);
     for v in 0..oh {
         let y = ((v as f64 + 0.5) * sy - 0.5).clamp(0.0, (h - 1) as f64);
@@ -97,11 +104,10 @@ pub fn frame_to_tensor(rgb: &[u8], width: u32, height: u32, k: &Intrinsics, out_
                 let p = |xx: usize, yy: usize| rgb[(yy * w + xx) * 3 + c] as f64;
                 let top = p(x0, y0) * (1.0 - fx) + p(x1, y0) * fx;
                 let bottom = p(x0, y1) * (1.0 - fx) + p(x1, y1) * fx;
-                data[(c * oh + v) * ow + u] = ((top * (1.0 - fy) + bottom * fy) / 127.5 - 1.0) as f32;
+                put(u, v, c, top * (1.0 - fy) + bottom * fy);
             }
         }
     }
-    Ok((Tensor::new(vec![1, 3, oh, ow], data), k2))
 }
 
 /// One image of a (B, 3, H, W) tensor in [-1, 1] back to RGB bytes, clamped.

@@ -111,6 +111,25 @@ pub const FILL_ROUNDS: usize = 2;
 /// 28.77); a true occluder is nearer by far more than 15%.
 pub const REFERENCE_MARGIN: f64 = 0.15;
 
+/// A warp source moved to `width × height` (the model's frame size), owned:
+/// colour sampled bilinearly as the encoder's input is, depth taken from the
+/// nearest source pixel (an average across an edge would put a surface where
+/// none is), the intrinsics scaled to match. Frames of any size a client
+/// observes can then be warped into the model's view.
+pub fn resampled(src: &WarpSource, width: u32, height: u32) -> Result<(Vec<u8>, Vec<u16>, Intrinsics), ModelError> {
+    let k = src.intrinsics;
+    let (w, h, ow, oh) = (k.width as usize, k.height as usize, width as usize, height as usize);
+    if src.rgb.len() != w * h * 3 || src.depth_mm.len() != w * h {
+        return Err(ModelError::input("warp", format!("a source's pixels do not match its {w}x{h} intrinsics")));
+    }
+    let k2 = k.resized(width, height).map_err(|e| ModelError::input("warp", e.to_string()))?;
+    let mut rgb = vec![0u8; ow * oh * 3];
+    crate::generate::bilinear(src.rgb, w, h, ow, oh, |u, v, c, value| rgb[(v * ow + u) * 3 + c] = value.round() as u8);
+    let nearest = |o: usize, n: usize, on: usize| (((o as f64 + 0.5) * n as f64 / on as f64) as usize).min(n - 1);
+    let depth = (0..oh).flat_map(|v| (0..ow).map(move |u| (u, v))).map(|(u, v)| src.depth_mm[nearest(v, h, oh) * w + nearest(u, w, ow)]).collect();
+    Ok((rgb, depth, k2))
+}
+
 /// The fused reference: [`fused_warp`] with cracks filled from their
 /// neighbours over [`FILL_ROUNDS`] rounds, what is still empty the best
 /// frame's own pixel. The probe's strongest non-learned row, and what a
@@ -302,6 +321,26 @@ mod tests {
         assert_eq!(out.rgb, rgb);
         assert_eq!(out.coverage(), 1.0);
         assert_eq!((out.depth[0], out.depth[20 * 32]), (f64::INFINITY, 5.0), "sky at infinity, the wall where it was");
+    }
+
+    #[test]
+    fn a_source_resampled_to_half_size_averages_colour_and_keeps_depth_edges() {
+        let (rgb, depth) = wall();
+        let k = camera();
+        let pose = Pose::from_position(DVec3::ZERO);
+        let src = WarpSource { rgb: &rgb, depth_mm: &depth, pose: &pose, intrinsics: &k };
+        let (small, small_depth, k2) = resampled(&src, 16, 16).unwrap();
+        assert_eq!((k2.width, k2.height, small.len(), small_depth.len()), (16, 16, 16 * 16 * 3, 16 * 16));
+        assert!((k2.fx - k.fx / 2.0).abs() < 1e-9);
+        // Output pixel (3, 5) sits between source columns 6 and 7, rows 10 and 11: their mean.
+        let at = (5 * 16 + 3) * 3;
+        assert_eq!(&small[at..at + 2], &[(6 * 8 + 7 * 8) / 2, (10 * 8 + 11 * 8) / 2]);
+        // Depth is never a mix of the sky (0) and the wall (5000) at the wall's top edge.
+        assert!(small_depth.iter().all(|&d| d == 0 || d == 5000));
+        assert_eq!((small_depth[3 * 16], small_depth[4 * 16]), (0, 5000));
+        // Warped to its own pose, the half-size source is itself.
+        let half = WarpSource { rgb: &small, depth_mm: &small_depth, pose: &pose, intrinsics: &k2 };
+        assert_eq!(forward_warp(&half, &pose).unwrap().rgb, small);
     }
 
     #[test]
