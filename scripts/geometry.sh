@@ -45,17 +45,21 @@ case "${1:-}" in
   export)
     ./scripts/model.sh export --run "$run" --policy "$policy" --layouts "$policy" --data data/val --out "$out" --half --threads "$threads" ;;
   eval)
-    # The rows measured on 2026-11-23 are reused from runs/recipe/eval-test/rows when their models are unchanged.
-    # Their baseline row is the first-trained baseline these fine-tunes started from.
+    # Their baseline row is the first-trained baseline these fine-tunes started from. The
+    # ablation rows run when their models are there; they are not shipped: make them with
+    # `./scripts/recipe.sh train POLICY` (the *_recipe models, baseline_ctx_noise with
+    # RECIPE as in recipe.sh) and `POLICY=... RUN=... OUT=fixtures/variants/POLICY_geometry
+    # ./scripts/geometry.sh train && ... export` (the *_geometry ones).
     first_baseline
+    extra=(--extra worldpack_recipe=$recipe --extra "$geo" --plan-warps worldpack_geometry)
+    for name in baseline_ctx_noise baseline_continued nearest_frame_packing_recipe memory_retrieval_recipe \
+                nearest_frame_packing_geometry memory_retrieval_geometry; do
+      [ -f "fixtures/variants/$name/manifest.json" ] || continue
+      extra+=(--extra "$name=fixtures/variants/$name")
+      [[ "$name" == *_geometry ]] && extra+=(--plan-warps "$name")
+    done
     "$bin" eval --suite data/loopnav-test --models runs/geo/first-baseline --policies baseline --out runs/recipe/eval-test \
-        --extra baseline_ctx_noise=fixtures/variants/baseline_ctx_noise --extra worldpack_recipe=$recipe \
-        --extra nearest_frame_packing_recipe=fixtures/variants/nearest_frame_packing_recipe \
-        --extra memory_retrieval_recipe=fixtures/variants/memory_retrieval_recipe --extra "$geo" \
-        --extra baseline_continued=fixtures/variants/baseline_continued --plan-warps worldpack_geometry \
-        --extra nearest_frame_packing_geometry=fixtures/variants/nearest_frame_packing_geometry --plan-warps nearest_frame_packing_geometry \
-        --extra memory_retrieval_geometry=fixtures/variants/memory_retrieval_geometry --plan-warps memory_retrieval_geometry \
-        --composite baseline --composite worldpack_geometry --against worldpack_recipe \
+        "${extra[@]}" --composite baseline --composite worldpack_geometry --against worldpack_recipe \
         --strip worldpack_geometry,worldpack_recipe,baseline,reproject_fused --threads "${EVAL_THREADS:-2}" "${@:2}" ;;
   probe)
     # Only the rows the geometry questions need: the baseline (required), WorldPack with the recipe, the geometry model.

@@ -39,8 +39,9 @@ pub const VARIANTS: &[Variant] = &[
     row("worldpack", "WorldPack", "WorldPack", PolicyKind::WorldPack, Query::Current, false, "worldpack"),
     // WorldMem's greedy selection fills four full-rate slots, like memory retrieval, so it borrows those weights.
     row("worldmem_greedy", "WorldMem greedy", "WorldMem greedy", PolicyKind::WorldMemGreedy, Query::Target, false, "memory_retrieval"),
-    row("memory_retrieval_target", "Memory retrieval, target-pose query", "MR target", PolicyKind::MemoryRetrieval, Query::Target, false, "memory_retrieval_target"),
-    row("worldpack_target", "WorldPack, target-pose query", "WP target", PolicyKind::WorldPack, Query::Target, false, "worldpack_target"),
+    // The target-pose query at inference, with the weights trained on the current-pose query's plans.
+    row("memory_retrieval_target", "Memory retrieval, target-pose query", "MR target", PolicyKind::MemoryRetrieval, Query::Target, false, "memory_retrieval"),
+    row("worldpack_target", "WorldPack, target-pose query", "WP target", PolicyKind::WorldPack, Query::Target, false, "worldpack"),
     // The fix of 2026-11-21 for the target-pose query dropping the newest frame;
     // Algorithm 1 keeps that frame by itself, so this stays only for the models trained so.
     row("worldpack_keep_last", "WorldPack, target-pose query, newest kept", "keep-last", PolicyKind::WorldPack, Query::Target, true, "worldpack_keep_last"),
@@ -101,5 +102,13 @@ mod tests {
         let err = variant("bogus").unwrap_err();
         assert_eq!(err.field(), "policy");
         assert!(err.to_string().contains("worldpack_target"), "{err}");
+    }
+
+    #[test]
+    fn every_variant_runs_with_weights_that_ship() {
+        let shipped = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../fixtures/variants");
+        for v in VARIANTS {
+            assert!(shipped.join(v.weights).join("manifest.json").exists(), "{}: no fixtures/variants/{}", v.name, v.weights);
+        }
     }
 }
