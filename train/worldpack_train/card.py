@@ -12,6 +12,7 @@ from pathlib import Path
 ROWS = {
     "served_covisible": "this model, served (1 step, co-visible memory, fusion heads)",
     "started_from_covisible": "the model it was fine-tuned from, served the same way",
+    "worldpack": "the paper's WorldPack (packed memory, no warp input), 10 DDIM steps",
     "baseline": "its own 4-frame baseline (no memory), 10 DDIM steps",
     "reproject_fused": "the fused warp: the best stored frames moved into the view with their depth",
     "reproject": "the best stored frame reprojected with its depth",
@@ -71,11 +72,7 @@ def render(manifest: dict, settings: dict, lineage: dict) -> str:
            f"A WorldPack model made by `worldpack train` from `{data['suite']}` "
            f"({data['trajectories']} trajectories, {data['frames']:,} frames, 64x64, world kind `{data['kind']}`; "
            f"suite digest `{data['digest']}`).",
-           "", "## Served as", "",
-           f"`worldpack serve --model DIR` serves it so, with no flags: policy `{serving['policy']}`, "
-           f"sampler {serving['method']} in {serving['steps']} step (a distilled student), "
-           f"memory chosen by {'co-visibility' if serving['covisible'] else 'frustum overlap'}, "
-           f"{serving['warp_frames']} stored frames warped into each new view.",
+           "", "## Served as", "", *served_as(serving),
            "", "## Made by", "",
            ("Fine-tuned from " + ", ".join(f"{k} `{v}`" for k, v in fam.items()) if fam else "Trained from scratch") + ".",
            f"Settings: `train.json` (digest `{manifest['lineage']['settings_digest']}`); device {settings['device']}, "
@@ -87,11 +84,7 @@ def render(manifest: dict, settings: dict, lineage: dict) -> str:
             f"frames; `{ev['suite']}`). Means with 95% intervals resampled over trajectories; differences paired "
             "frame by frame. Sharpness: the frame's gradient energy over the truth's (1 is the truth's). Holes: "
             "where none of the warped stored frames lands.", ""]
-    out += table(ev["rows"])
-    for name, s in ev["strata"].items():
-        if s["frames"] == 0:
-            continue
-        out += ["", f"**{name}** ({s['describe']}; {s['frames']:,} frames)", ""] + table(s["rows"])
+    out += eval_tables(ev)
     out += ["", "![a held-out way back: the truth, then each row](heldout-strip.png)", "",
             "## Limits", "",
             "- 64x64 frames; the intrinsics and world scale of the training data (positions in roughly metres).",
@@ -101,20 +94,79 @@ def render(manifest: dict, settings: dict, lineage: dict) -> str:
     return "\n".join(out)
 
 
+def served_as(serving: dict) -> list[str]:
+    return [f"`worldpack serve --model DIR` serves it so, with no flags: policy `{serving['policy']}`, "
+            f"sampler {serving['method']} in {serving['steps']} step{'s' if serving['steps'] > 1 else ' (a distilled student)'}, "
+            f"memory chosen by {'co-visibility' if serving['covisible'] else 'frustum overlap'}, "
+            f"{serving['warp_frames']} stored frames warped into each new view."]
+
+
+def eval_tables(ev: dict) -> list[str]:
+    out = table(ev["rows"])
+    for name, s in ev["strata"].items():
+        if s["frames"]:
+            out += ["", f"**{name}** ({s['describe']}; {s['frames']:,} frames)", ""] + table(s["rows"])
+    return out
+
+
+def render_shipped(manifest: dict, world: str) -> str:
+    """The card of a shipped model the recipe's stages made one by one (before the trainer):
+    its last stage's training block, how it is served, and its test-suite eval."""
+    t, ev = manifest["training"], manifest["heldout_eval"]
+    data = t["data"]
+    maps = f", maps {', '.join(data['maps'])}" if data.get("maps") else ""
+    out = [f"# {manifest['name']} ({world})", "",
+           f"The served {world} model: WorldPack with the warp input, distilled to one denoiser call, with a fusion "
+           "head after the decoder. It was made by the recipe's stages run one at a time, before `worldpack train` "
+           f"existed; `worldpack train --from {world}` now fine-tunes this family on new data in one command "
+           "([training.md](../../../docs/training.md)).", "",
+           "## Served as", "", *served_as(manifest["serving"]), "",
+           "## Trained on", "",
+           f"Its last stage: `{data['suite']}` ({data['trajectories']} walks, split `{data['split']}`, "
+           f"{data['frame_size'][0]}x{data['frame_size'][1]}{maps}); policy `{t['policy']}`, {t['steps']:,} steps, "
+           f"{t['weights']} weights; recipe: " + ", ".join(f"{k} {v}" for k, v in t["recipe"].items()) + ".", "",
+           "## Test-suite eval", "",
+           f"Rollouts of the way back on {ev['trajectories']} walks of `{ev['suite']}` never trained on "
+           f"({ev['return_frames']:,} generated frames), made by `{ev['command']}`. Means with 95% intervals "
+           "resampled over walks; differences paired frame by frame. Sharpness: the frame's gradient energy over "
+           "the truth's (1 is the truth's). Holes: where none of the warped stored frames lands.", ""]
+    out += eval_tables(ev)
+    out += ["", "## Limits", "",
+            "- 64x64 frames; the intrinsics and scale of its world (positions in roughly metres).",
+            "- Where the memory has no pixels (new ground, holes) its detail is what it learned of its world.", ""]
+    return "\n".join(out)
+
+
+def ship(model: Path, figures: Path, world: str) -> None:
+    """Writes a shipped model's test-suite eval (a saved `scripts/figures.py` summary) into
+    its manifest as `heldout_eval`, then its MODEL.md from the manifest."""
+    manifest = json.loads((model / "manifest.json").read_text())
+    manifest["heldout_eval"] = json.loads(figures.read_text())
+    (model / "manifest.json").write_text(json.dumps(manifest, indent=2) + "\n")
+    (model / "MODEL.md").write_text(render_shipped(manifest, world))
+    print(f"wrote {model / 'MODEL.md'} and the manifest's heldout_eval")
+
+
 def report(results: Path) -> str:
     """The card's tables for one `worldpack eval` results.json: the held-out suite, then each stratum."""
     ev = summarise(json.loads(results.read_text()))
-    out = [f"`{ev['suite']}`: {ev['trajectories']} walks, {ev['return_frames']:,} generated frames", ""] + table(ev["rows"])
-    for name, s in ev["strata"].items():
-        if s["frames"]:
-            out += ["", f"{name} ({s['describe']}; {s['frames']:,} frames)", ""] + table(s["rows"])
+    out = [f"`{ev['suite']}`: {ev['trajectories']} walks, {ev['return_frames']:,} generated frames", ""] + eval_tables(ev)
     return "\n".join(out)
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description="Print the model card's eval tables for results.json files of `worldpack eval`")
-    ap.add_argument("results", type=Path, nargs="+")
-    for path in ap.parse_args().results:
+    ap = argparse.ArgumentParser(description="Print the model card's eval tables for results.json files of "
+                                 "`worldpack eval`, or (--ship) write a shipped model's card")
+    ap.add_argument("results", type=Path, nargs="*")
+    ap.add_argument("--ship", type=Path, help="a shipped model folder: its card from --eval's saved summary")
+    ap.add_argument("--eval", type=Path, help="with --ship: docs/figures/NAME.json of its test suite")
+    ap.add_argument("--world", help="with --ship: the world's name on the card")
+    a = ap.parse_args()
+    if a.ship:
+        if not (a.eval and a.world):
+            raise SystemExit("--ship needs --eval and --world")
+        ship(a.ship, a.eval, a.world)
+    for path in a.results:
         print(report(path) + "\n")
 
 

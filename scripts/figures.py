@@ -1,0 +1,160 @@
+"""The README's figures from saved runs (./scripts/figures.sh makes them).
+
+    figures.py save NAME RESULTS.json --command CMD    # an eval's summary -> docs/figures/NAME.json
+    figures.py save-json NAME REPORT.json --command CMD  # a benchmark's JSON -> docs/figures/NAME.json
+    figures.py render [--check]                        # README.md's table between its markers
+
+Each figure has one source, docs/figures/NAME.json, holding the command that made it;
+tests/test_figures.py runs `render --check`, so a README figure cannot drift from its run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from worldpack_train.card import fmt, summarise
+
+ROOT = Path(__file__).resolve().parent.parent
+FIGURES = ROOT / "docs" / "figures"
+README = ROOT / "README.md"
+BEGIN = "<!-- figures: written by ./scripts/figures.sh render from docs/figures/*.json; edit those, not this table -->"
+END = "<!-- /figures -->"
+
+
+def load(name: str) -> dict:
+    path = FIGURES / f"{name}.json"
+    if not path.exists():
+        raise SystemExit(f"{path.relative_to(ROOT)} is missing: run the command that makes it (./scripts/figures.sh)")
+    return json.loads(path.read_text())
+
+
+def db(i: dict) -> str:
+    return f"{i['mean']:.2f} dB"
+
+
+def gap(i: dict) -> str:
+    """A paired difference with its interval."""
+    return fmt(i, signed=True)
+
+
+def share(i: dict) -> str:
+    return f"{i['mean']:.2f}"
+
+
+def code(command: str) -> str:
+    return f"`{command}`"
+
+
+def paper_row(world: str, name: str) -> list[str]:
+    ev = load(f"{name}-paper")
+    rows = ev["rows"]
+    return [f"The paper's comparison, {world}: WorldPack against its 4-frame baseline, {ev['trajectories']} test walks",
+            f"{db(rows['worldpack']['psnr'])} against {db(rows['baseline']['psnr'])}: "
+            f"{gap(rows['baseline']['served_minus_row_db'])} dB", code(ev["command"])]
+
+
+def served_row(what: str, name: str) -> list[str]:
+    ev = load(name)
+    rows, new = ev["rows"], ev["strata"]["new_ground"]
+    served, warp = rows["served_covisible"], rows["reproject_fused"]
+    figure = (f"{db(served['psnr'])}; {gap(warp['served_minus_row_db'])} dB over the fused warp, at "
+              f"{share(served['sharpness'])} of the truth's edge energy")
+    if new["frames"]:
+        new_rows = new["rows"]
+        figure += (f"; on new ground ({new['frames']:,} frames) {gap(new_rows['reproject_fused']['served_minus_row_db'])} dB, "
+                   f"at {share(new_rows['served_covisible']['sharpness'])}")
+    return [what.format(n=ev["trajectories"]), figure, code(ev["command"])]
+
+
+def miniworld_row() -> list[str]:
+    aba, abca = load("miniworld-aba"), load("miniworld-abca")
+    both = lambda f: " and ".join(f(ev["rows"]) for ev in (aba, abca))
+    figure = (f"{both(lambda r: db(r['served_covisible']['psnr']))}; over the fused warp "
+              f"{both(lambda r: gap(r['reproject_fused']['served_minus_row_db']))} dB, at "
+              f"{both(lambda r: share(r['served_covisible']['sharpness']))} of the truth's edge energy; over the "
+              f"Doom model it started from {both(lambda r: gap(r['started_from_covisible']['served_minus_row_db']))} dB")
+    return [f"MiniWorld's rooms (a world brought in through the trainer), {aba['trajectories']} ABA and "
+            f"{abca['trajectories']} ABCA walks at world seeds never trained on", figure, code(aba["command"])]
+
+
+def trainer_row() -> list[str] | None:
+    if not (FIGURES / "voxel-trainer.json").exists():
+        return None
+    ev = load("voxel-trainer")
+    rows = ev["rows"]
+    made = rows["command_covisible"]
+    minus = {"mean": -made["served_minus_row_db"]["mean"], "lo": -made["served_minus_row_db"]["hi"],
+             "hi": -made["served_minus_row_db"]["lo"]}
+    return ["The voxel model `worldpack train --from voxel` makes on 2 cores, beside the served one, same 48 walks",
+            f"{db(made['psnr'])} against {db(rows['served_covisible']['psnr'])}: {gap(minus)} dB; "
+            f"{share(made['sharpness'])} of the truth's edge energy against {share(rows['served_covisible']['sharpness'])}",
+            code(ev["command"])]
+
+
+def speed_rows() -> list[list[str]]:
+    walk, select = load("walk"), load("select-loop")
+    w = walk["report"]["rows"][0]
+    by_frames = {r["frames"]: r for r in select["report"]["rows"]}
+    return [["A step of the main job on one core (the served voxel model)",
+             f"{w['p50_ms'][-1]:.1f} ms median, {w['p99_ms'][-1]:.1f} ms p99 ({w['steps_per_s']:.0f} steps a second)",
+             code(walk["command"])],
+            ["Choosing memories, LoopNav-like walk",
+             f"{by_frames[1600]['indexed_median_ms']:.2f} ms at 1,600 stored frames, "
+             f"{by_frames[100000]['indexed_median_ms']:.1f} ms at 100,000", code(select["command"])]]
+
+
+def table() -> str:
+    rows = [paper_row("voxel world", "voxel-test"),
+            served_row("The served voxel model, the same {n} walks", "voxel-test"),
+            trainer_row(),
+            paper_row("Doom", "doom-test"),
+            served_row("The served Doom model, {n} walks on maps never trained on", "doom-test"),
+            miniworld_row(), *speed_rows()]
+    lines = ["| what | figure | command |", "| --- | --- | --- |"]
+    lines += [f"| {' | '.join(r)} |" for r in rows if r is not None]
+    return "\n".join(lines)
+
+
+def render(readme: Path, check: bool) -> int:
+    text = readme.read_text()
+    if BEGIN not in text or END not in text:
+        raise SystemExit(f"README.md: the figures' markers are missing ({BEGIN!r} ... {END!r})")
+    head, rest = text.split(BEGIN, 1)
+    _, tail = rest.split(END, 1)
+    new = f"{head}{BEGIN}\n{table()}\n{END}{tail}"
+    if check:
+        if new != text:
+            print(f"{readme.name}'s figures differ from docs/figures/*.json: run ./scripts/figures.sh render", file=sys.stderr)
+            return 1
+        return 0
+    readme.write_text(new)
+    return 0
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    sub = ap.add_subparsers(dest="what", required=True)
+    for name, helptext in (("save", "an eval's results.json"), ("save-json", "a benchmark's --json output")):
+        s = sub.add_parser(name, help=helptext)
+        s.add_argument("name")
+        s.add_argument("source", type=Path)
+        s.add_argument("--command", required=True, help="the command that reproduces it, as a user runs it")
+    r = sub.add_parser("render", help="README.md's table from docs/figures/*.json")
+    r.add_argument("--check", action="store_true", help="fail, changing nothing, when README.md differs")
+    r.add_argument("--readme", type=Path, default=README, help="the page to render into (default: README.md)")
+    a = ap.parse_args()
+    if a.what == "render":
+        return render(a.readme, a.check)
+    report = json.loads(a.source.read_text())
+    body = summarise(report) if a.what == "save" else {"report": report}
+    FIGURES.mkdir(parents=True, exist_ok=True)
+    (FIGURES / f"{a.name}.json").write_text(json.dumps({"command": a.command, **body}, indent=1) + "\n")
+    print(f"wrote docs/figures/{a.name}.json")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

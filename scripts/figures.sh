@@ -1,0 +1,86 @@
+#!/usr/bin/env bash
+# The figures the README quotes, each from one saved run: every eval and benchmark below
+# writes its summary into docs/figures/NAME.json with the command that made it, and
+# `render` writes the README's table from those files (tests/test_figures.py fails when
+# the README differs from them). Evals resume: rows already done with the same settings
+# are reused (runs/figures/).
+#   ./scripts/figures.sh voxel        # the voxel test suite (sim loopnav --per-cell 6 --seed 6, 48 walks):
+#                                     # the paper's pair and the served model
+#   ./scripts/figures.sh doom         # Doom's test maps (48 walks, seed 2, maps never trained on): the same rows
+#   ./scripts/figures.sh miniworld    # MiniWorld's held-out suites, from ./scripts/miniworld.sh eval's runs
+#   ./scripts/figures.sh trainer      # the voxel model `worldpack train` makes (MODEL: runs/voxel-h1) beside
+#                                     # the served one on the voxel test suite
+#   ./scripts/figures.sh speed        # the main job's step on one core (taskset) and memory selection
+#   ./scripts/figures.sh render       # README.md's table from docs/figures/*.json
+# THREADS (1) sets the evals' intra-op threads.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+[ -x target/release/worldpack ] || cargo test --release --workspace --no-run
+bin=target/release/worldpack
+py=.venv/bin/python
+threads="${THREADS:-1}"
+figures() { PYTHONPATH=train "$py" scripts/figures.py "$@"; }
+
+suite() {  # suite DIR ARGS...: a voxel suite made once, then planned
+  local dir=$1; shift
+  [ -f "$dir/index.json" ] || "$bin" sim loopnav "$@" --out "$dir"
+  [ -f "$dir/plans.json" ] || "$bin" plan --data "$dir"
+}
+
+# paper_and_served SUITE MODELS SERVED NAME: the paper's pair (each policy with its own
+# weights from MODELS) and the served model, then the summary twice: paired against the
+# served model, and against WorldPack (the paper's comparison).
+paper_and_served() {
+  local s=$1 models=$2 served=$3 name=$4 out="runs/figures/$4"
+  local rows=(--suite "$s" --models "$models" --policies baseline,worldpack --extra served="$served" --covisible served
+              --only baseline --only worldpack --only served_covisible --probe-frames 32 --threads "$threads" --out "$out")
+  "$bin" eval "${rows[@]}" --against worldpack
+  figures save "$name-paper" "$out/results.json" --command "./scripts/figures.sh ${FUNCNAME[1]}"
+  "$bin" eval "${rows[@]}" --against served_covisible
+  figures save "$name" "$out/results.json" --command "./scripts/figures.sh ${FUNCNAME[1]}"
+}
+
+voxel() {
+  suite data/loopnav-test --per-cell 6 --seed 6
+  paper_and_served data/loopnav-test fixtures/variants fixtures/variants/worldpack_geometry_fused_1step voxel-test
+}
+
+doom() {
+  if [ ! -f data/doom-test/index.json ]; then
+    (cd doom && PYTHONPATH=.:../train ../.venv/bin/python -m worldpack_doom suite --split test --count 48 --seed 2 --out ../data/doom-test)
+  fi
+  [ -f data/doom-test/plans.json ] || "$bin" plan --data data/doom-test
+  paper_and_served data/doom-test fixtures/doom fixtures/doom/geometry_fused doom-test
+}
+
+miniworld() {
+  for s in aba abca; do
+    [ -f "runs/mw-eval/mw-test-$s/results.json" ] || ./scripts/miniworld.sh eval "data/mw-test-$s"
+    figures save "miniworld-$s" "runs/mw-eval/mw-test-$s/results.json" \
+      --command "./scripts/miniworld.sh data && ./scripts/miniworld.sh train && ./scripts/miniworld.sh eval data/mw-test-$s"
+  done
+}
+
+trainer() {
+  local model="${MODEL:-runs/voxel-h1}" out=runs/figures/voxel-test  # its served row is reused
+  suite data/loopnav-test --per-cell 6 --seed 6
+  "$bin" eval --suite data/loopnav-test --policies baseline --extra served=fixtures/variants/worldpack_geometry_fused_1step \
+    --covisible served --extra command="$model" --covisible command --only served_covisible --only command_covisible \
+    --probe-frames 32 --against served_covisible --threads "$threads" --out "$out"
+  figures save voxel-trainer "$out/results.json" \
+    --command "./scripts/train.sh --data data/voxel-train101 --out $model --from voxel --hours 1.5 && ./scripts/figures.sh trainer"
+}
+
+speed() {
+  taskset -c 0 "$bin" bench walk --sessions 1 --json > runs/figures-walk.json
+  figures save-json walk runs/figures-walk.json --command "taskset -c 0 target/release/worldpack bench walk --sessions 1"
+  "$bin" bench select --workload loop --json > runs/figures-select.json
+  figures save-json select-loop runs/figures-select.json --command "target/release/worldpack bench select --workload loop"
+}
+
+mkdir -p runs/figures
+case "${1:-}" in
+  voxel|doom|miniworld|trainer|speed) "$1" ;;
+  render) figures render ;;
+  *) sed -n '2,16p' "$0"; exit 2 ;;
+esac
