@@ -182,6 +182,19 @@ fn bad_candidates_horizons_and_sizes_are_refused_naming_the_field() {
 }
 
 #[test]
+fn the_limits_are_the_servers_flags() {
+    let s = Server::start(&temp_store("imagine-limits"), &["--imagine-max-candidates", "2", "--imagine-max-horizon", "3"]);
+    let id = session(&s, 7);
+    let one = json!({ "actions": [{}] });
+    let (code, r) = s.post(&format!("/v1/sessions/{id}/imagine"), &json!({ "candidates": [one.clone(), one.clone(), one.clone()] }));
+    assert_eq!((code, r["error"]["field"].as_str()), (400, Some("candidates")), "{r}");
+    let (code, r) = s.post(&format!("/v1/sessions/{id}/imagine"), &json!({ "candidates": [{ "actions": [{}, {}, {}, {}] }] }));
+    assert_eq!((code, r["error"]["field"].as_str()), (400, Some("candidates[0].actions")), "{r}");
+    let r = imagine(&s, id, json!({ "candidates": [{ "actions": [{}, {}, {}] }, { "actions": [{}, {}, {}] }] }));
+    assert_eq!(r["candidates"].as_array().map(Vec::len), Some(2), "{r}");
+}
+
+#[test]
 fn a_server_without_a_model_cannot_imagine() {
     let s = Server::start(&temp_store("imagine-memory-only"), &["--memory-only"]);
     let (code, r) = s.post("/v1/sessions/1/imagine", &json!({ "candidates": [{ "actions": [{}] }] }));

@@ -94,12 +94,21 @@ pub struct Args {
     /// A fusion-head model's memory keeps each frame's sampled latent instead of re-encoding the blended frame shown (one encoder call less a step).
     #[arg(long)]
     pub sampled_latents: bool,
+    /// The most candidate futures (K) one `imagine` request may ask for.
+    #[arg(long, default_value_t = 64, value_parser = clap::value_parser!(u64).range(1..=4096))]
+    pub imagine_max_candidates: u64,
+    /// The most steps (H) each imagined candidate may take.
+    #[arg(long, default_value_t = 64, value_parser = clap::value_parser!(u64).range(1..=4096))]
+    pub imagine_max_horizon: u64,
+    /// The most MiB of imagined frames one `imagine` answer may carry (before base64).
+    #[arg(long, default_value_t = 24, value_parser = clap::value_parser!(u64).range(1..=4096))]
+    pub imagine_max_answer_mib: u64,
 }
 
 pub fn run(a: Args) -> Result<()> {
     let Args { model, memory_only, model_backend, store, addr, provider, threads, steps, method, policy, max_queue, max_inflight, overlay_warp,
         covisible, batch_window_ms, batch_max, retain_idle_secs, tokens_file, max_sessions_per_tenant, rate_per_tenant, allow_unauthenticated,
-        tls_cert, tls_key, sampled_latents } = a;
+        tls_cert, tls_key, sampled_latents, imagine_max_candidates, imagine_max_horizon, imagine_max_answer_mib } = a;
     if !(rate_per_tenant.is_finite() && rate_per_tenant > 0.0) {
         bail!("--rate-per-tenant: must be a positive number, got {rate_per_tenant}");
     }
@@ -139,6 +148,11 @@ pub fn run(a: Args) -> Result<()> {
         batch_window: (batch_window_ms > 0).then(|| std::time::Duration::from_millis(batch_window_ms)),
         batch_max: batch_max as usize,
         retain_idle: (retain_idle_secs > 0).then(|| std::time::Duration::from_secs(retain_idle_secs)),
+        imagine: api::imagine::Limits {
+            candidates: imagine_max_candidates as usize,
+            horizon: imagine_max_horizon as usize,
+            answer_bytes: (imagine_max_answer_mib as usize) << 20,
+        },
         ..api::Config::default()
     };
     serve(config)
