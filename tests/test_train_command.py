@@ -105,6 +105,28 @@ def test_serve_answers_a_step_with_the_model_it_made(trained, tmp_path):
         proc.wait(timeout=30)
 
 
+def test_without_from_every_stage_trains_from_scratch_and_the_model_serves(trained, tmp_path):
+    data, _, _ = trained
+    out = tmp_path / "scratch"
+    run = worldpack("train", "--data", data, "--out", out, *TINY)
+    assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
+    lineage = json.loads((out / "lineage.json").read_text())
+    assert json.loads((out / "train.json").read_text())["from"] is None
+    assert lineage["stages"]["from"]["status"] == "done" and "started_from_covisible" not in \
+        json.loads((out / "manifest.json").read_text())["heldout_eval"]["rows"]
+    proc, url = start(tmp_path, "--model", str(out))
+    try:
+        body = json.dumps({"synthetic": {"seed": 3}}).encode()
+        req = urllib.request.Request(url + "/v1/sessions", body, {"content-type": "application/json"})
+        session = json.load(urllib.request.urlopen(req))["session"]
+        req = urllib.request.Request(f"{url}/v1/sessions/{session}/step", json.dumps({"action": {"forward": True}}).encode(),
+                                     {"content-type": "application/json"})
+        assert json.load(urllib.request.urlopen(req))["image_png"]
+    finally:
+        proc.terminate()
+        proc.wait(timeout=30)
+
+
 def refused(tmp_path, data, *extra):
     out = tmp_path / "never"
     run = worldpack("train", "--data", data, "--out", out, "--from", "voxel", *extra)
