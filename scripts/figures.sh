@@ -11,6 +11,7 @@
 #   ./scripts/figures.sh trainer      # the voxel model `worldpack train` makes (MODEL: runs/voxel-h1) beside
 #                                     # the served one on the voxel test suite
 #   ./scripts/figures.sh speed        # the main job's step on one core (taskset) and memory selection
+#   ./scripts/figures.sh cards        # the served voxel and Doom models' MODEL.md from their test suites' runs
 #   ./scripts/figures.sh render       # README.md's table from docs/figures/*.json
 # THREADS (1) sets the evals' intra-op threads.
 set -euo pipefail
@@ -78,9 +79,15 @@ speed() {
   figures save-json select-loop runs/figures-select.json --command "target/release/worldpack bench select --workload loop"
 }
 
+cards() {
+  PYTHONPATH=train "$py" -m worldpack_train.card --ship fixtures/variants/worldpack_geometry_fused_1step \
+    --eval docs/figures/voxel-test.json --world voxel
+  PYTHONPATH=train "$py" -m worldpack_train.card --ship fixtures/doom/geometry_fused --eval docs/figures/doom-test.json --world Doom
+}
+
 mkdir -p runs/figures
 case "${1:-}" in
-  voxel|doom|miniworld|trainer|speed) "$1" ;;
+  voxel|doom|miniworld|trainer|speed|cards) "$1" ;;
   render) figures render ;;
-  *) sed -n '2,16p' "$0"; exit 2 ;;
+  *) sed -n '2,17p' "$0"; exit 2 ;;
 esac

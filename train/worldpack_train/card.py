@@ -118,7 +118,7 @@ def render_shipped(manifest: dict, world: str) -> str:
     out = [f"# {manifest['name']} ({world})", "",
            f"The served {world} model: WorldPack with the warp input, distilled to one denoiser call, with a fusion "
            "head after the decoder. It was made by the recipe's stages run one at a time, before `worldpack train` "
-           f"existed; `worldpack train --from {world}` now fine-tunes this family on new data in one command "
+           f"existed; `worldpack train --from {world.lower()}` now fine-tunes this family on new data in one command "
            "([training.md](../../../docs/training.md)).", "",
            "## Served as", "", *served_as(manifest["serving"]), "",
            "## Trained on", "",
