@@ -6,10 +6,11 @@
 # are reused (runs/figures/).
 #   ./scripts/figures.sh voxel        # the voxel test suite (sim loopnav --per-cell 6 --seed 6, 48 walks):
 #                                     # the paper's pair and the served model
-#   ./scripts/figures.sh doom         # Doom's test maps (48 walks, seed 2, maps never trained on): the same rows
+#   ./scripts/figures.sh doom         # Doom's test maps (48 walks, seed 2, maps never trained on): the served
+#                                     # model and the 4-frame baseline
 #   ./scripts/figures.sh miniworld    # MiniWorld's held-out suites, from ./scripts/miniworld.sh eval's runs
-#   ./scripts/figures.sh trainer      # the voxel model `worldpack train` makes (MODEL: runs/voxel-h1) beside
-#                                     # the served one on the voxel test suite
+#   ./scripts/figures.sh trainer voxel  # the model `worldpack train --from voxel` makes (MODEL: runs/voxel-h1)
+#                                     # beside the served one on the voxel test suite (doom: runs/doom-h1, Doom's)
 #   ./scripts/figures.sh speed        # the main job's step on one core (taskset) and memory selection
 #   ./scripts/figures.sh cards        # the served voxel and Doom models' MODEL.md from their test suites' runs
 #   ./scripts/figures.sh render       # README.md's table from docs/figures/*.json
@@ -51,7 +52,12 @@ doom() {
     (cd doom && PYTHONPATH=.:../train ../.venv/bin/python -m worldpack_doom suite --split test --count 48 --seed 2 --out ../data/doom-test)
   fi
   [ -f data/doom-test/plans.json ] || "$bin" plan --data data/doom-test
-  paper_and_served data/doom-test fixtures/doom fixtures/doom/geometry_fused doom-test
+  # The served model and the 4-frame baseline (docs/doom.md has the paper's pair on Doom).
+  local out=runs/figures/doom-test
+  "$bin" eval --suite data/doom-test --models fixtures/doom --policies baseline --extra served=fixtures/doom/geometry_fused \
+    --covisible served --only baseline --only served_covisible --probe-frames 32 --against served_covisible \
+    --threads "$threads" --out "$out"
+  figures save doom-test "$out/results.json" --command "./scripts/figures.sh doom"
 }
 
 miniworld() {
@@ -62,14 +68,22 @@ miniworld() {
   done
 }
 
+# trainer WORLD: the model `worldpack train --from WORLD` made (MODEL) beside the served one on
+# WORLD's test suite; the served row is the one `./scripts/figures.sh WORLD` ran, reused.
 trainer() {
-  local model="${MODEL:-runs/voxel-h1}" out=runs/figures/voxel-test  # its served row is reused
-  suite data/loopnav-test --per-cell 6 --seed 6
-  "$bin" eval --suite data/loopnav-test --policies baseline --extra served=fixtures/variants/worldpack_geometry_fused_1step \
-    --covisible served --extra command="$model" --covisible command --only served_covisible --only command_covisible \
+  local world=${1:?usage: $0 trainer voxel|doom} suite served data
+  case "$world" in
+    voxel) suite=data/loopnav-test served=fixtures/variants/worldpack_geometry_fused_1step data=data/voxel-train101 ;;
+    doom) suite=data/doom-test served=fixtures/doom/geometry_fused data=data/doom-train ;;
+    *) echo "trainer: voxel or doom, not $world" >&2; exit 2 ;;
+  esac
+  local model="${MODEL:-runs/$world-h1}" out="runs/figures/$world-test"
+  "$bin" eval --suite "$suite" --policies baseline --extra served="$served" --covisible served \
+    --extra command="$model" --covisible command --only served_covisible --only command_covisible \
     --probe-frames 32 --against served_covisible --threads "$threads" --out "$out"
-  figures save voxel-trainer "$out/results.json" \
-    --command "./scripts/train.sh --data data/voxel-train101 --out $model --from voxel --hours 1.5 && ./scripts/figures.sh trainer"
+  figures save "$world-trainer" "$out/results.json" --command "./scripts/train.sh --data $data --out $model --from $world \
+--hours $(PYTHONPATH=train "$py" -c "import json,sys; print(json.load(open(sys.argv[1]))['hours'])" "$model/train.json") \
+&& ./scripts/figures.sh trainer $world"
 }
 
 speed() {
@@ -87,7 +101,7 @@ cards() {
 
 mkdir -p runs/figures
 case "${1:-}" in
-  voxel|doom|miniworld|trainer|speed|cards) "$1" ;;
+  voxel|doom|miniworld|trainer|speed|cards) "$@" ;;
   render) figures render ;;
   *) sed -n '2,17p' "$0"; exit 2 ;;
 esac
