@@ -32,7 +32,7 @@ case "${1:-}" in
     ldd /usr/bin/zstd | awk '/=> \// && !/libc.so/ { print $3 }' | xargs -I{} cp -L {} "$dev/common/zstd/"
     strip -o "$dev/worldpack" target/release/worldpack
     zstd -19 -q -f "$dev/worldpack" -o "$dev/common/worldpack.zst" && rm "$dev/worldpack"
-    tar -cf - fixtures/small fixtures/variants/worldpack_geometry_fused_1step \
+    tar -cf - fixtures/small fixtures/variants/worldpack_geometry_fused_1step fixtures/variants/worldpack_geometry_fused_1step_mse \
         | zstd -19 -q -f -o "$dev/common/fixtures.tar.zst"
     echo "$dev/common: $(size "$dev/common")" ;;
   train)
