@@ -15,7 +15,7 @@ import json
 import sys
 from pathlib import Path
 
-from worldpack_train.card import fmt, summarise
+from worldpack_train.card import fmt, interval, summarise
 
 ROOT = Path(__file__).resolve().parent.parent
 FIGURES = ROOT / "docs" / "figures"
@@ -89,8 +89,7 @@ def trainer_row(world: str) -> list[str] | None:
     ev = load(f"{world}-trainer")
     rows = ev["rows"]
     made, served = rows["command_covisible"], rows["served_covisible"]
-    behind = made["served_minus_row_db"]  # served − made
-    ahead = {"mean": -behind["mean"], "lo": -behind["hi"], "hi": -behind["lo"]}
+    ahead = interval(made["served_minus_row_db"], flip=True)  # made − served
     return [f"The {'Doom' if world == 'doom' else world} model `worldpack train --from {world}` makes on 2 cores, "
             f"beside the served one, the same {ev['trajectories']} walks",
             f"{db(made['psnr'])} against {db(served['psnr'])}: {gap(ahead)} dB; {share(made['sharpness'])} of the "

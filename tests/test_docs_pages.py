@@ -13,6 +13,8 @@ Stdlib only: `.venv/bin/python -m pytest tests/test_docs_pages.py -q`.
 import re
 from pathlib import Path
 
+from test_docs_references import prose_of  # fenced blocks and code spans blanked
+
 ROOT = Path(__file__).resolve().parent.parent
 DOCS = ROOT / "docs"
 RESEARCH = DOCS / "research"
@@ -28,8 +30,6 @@ DATE = re.compile(
 )
 NOT_KEPT = re.compile(r"not\s+kept", re.I)
 
-FENCE = re.compile(r"^\s*(```|~~~)")
-SPAN = re.compile(r"(`+)(.+?)\1", re.S)
 LINK_TARGET = re.compile(r"(\]\()[^)]*(\))")
 REFERENCE = re.compile(r"^\s{0,3}\[[^\]]+\]:\s*\S+.*$", re.M)
 ATTRIBUTE = re.compile(r"""\b(?:href|src|id|name)\s*=\s*(["'])[^"']*\1""", re.I)
@@ -43,17 +43,7 @@ def user_pages():
 def prose(text):
     """The page's prose, line numbers kept: fenced blocks, code spans, link targets,
     reference definitions, HTML attributes that name files or anchors, and comments blanked."""
-    out, fenced = [], False
-    for line in text.splitlines():
-        if FENCE.match(line):
-            fenced = not fenced
-            out.append("")
-        else:
-            out.append("" if fenced else line)
-    text = "\n".join(out)
-    blank = lambda m: "\n" * m.group(0).count("\n")
-    text = COMMENT.sub(blank, text)
-    text = SPAN.sub(blank, text)
+    text = COMMENT.sub(lambda m: "\n" * m.group(0).count("\n"), prose_of(text))
     text = LINK_TARGET.sub(lambda m: m.group(1) + "\n" * m.group(0).count("\n") + m.group(2), text)
     text = REFERENCE.sub("", text)
     return ATTRIBUTE.sub("", text)

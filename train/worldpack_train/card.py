@@ -18,6 +18,11 @@ ROWS = {
     "reproject": "the best stored frame reprojected with its depth",
 }
 
+# How to read the eval tables, under each card's heading.
+READING = ("Means with 95% intervals resampled over walks; differences paired frame by frame. Sharpness: the "
+           "frame's gradient energy over the truth's (1 is the truth's). Holes: where none of the warped stored "
+           "frames lands.")
+
 
 def interval(i: dict | None, flip: bool = False) -> dict | None:
     if i is None or i["mean"] is None:
@@ -81,9 +86,7 @@ def render(manifest: dict, settings: dict, lineage: dict) -> str:
     out += [f"| {k} | {v['status']} | {v['minutes']:.1f} |" for k, v in stages.items() if k != "card"]
     out += ["", "## Held-out eval", "",
             f"Rollouts of the way back on {ev['trajectories']} held-out trajectories ({ev['return_frames']:,} generated "
-            f"frames; `{ev['suite']}`). Means with 95% intervals resampled over trajectories; differences paired "
-            "frame by frame. Sharpness: the frame's gradient energy over the truth's (1 is the truth's). Holes: "
-            "where none of the warped stored frames lands.", ""]
+            f"frames; `{ev['suite']}`). {READING}", ""]
     out += eval_tables(ev)
     out += ["", "![a held-out way back: the truth, then each row](heldout-strip.png)", "",
             "## Limits", "",
@@ -127,9 +130,7 @@ def render_shipped(manifest: dict, world: str) -> str:
            f"{t['weights']} weights; recipe: " + ", ".join(f"{k} {v}" for k, v in t["recipe"].items()) + ".", "",
            "## Test-suite eval", "",
            f"Rollouts of the way back on {ev['trajectories']} walks of `{ev['suite']}` never trained on "
-           f"({ev['return_frames']:,} generated frames), made by `{ev['command']}`. Means with 95% intervals "
-           "resampled over walks; differences paired frame by frame. Sharpness: the frame's gradient energy over "
-           "the truth's (1 is the truth's). Holes: where none of the warped stored frames lands.", ""]
+           f"({ev['return_frames']:,} generated frames), made by `{ev['command']}`. {READING}", ""]
     out += eval_tables(ev)
     out += ["", "## Limits", "",
             "- 64x64 frames; the intrinsics and scale of its world (positions in roughly metres).",
