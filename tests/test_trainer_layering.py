@@ -7,7 +7,7 @@ import ast
 from pathlib import Path
 
 PACKAGE = Path(__file__).resolve().parent.parent / "train" / "worldpack_train"
-FLOORS = {"metrics": 0, "core": 1, "io": 2, "stages": 3, "settings": 4, "card": 4, "pipeline": 4, "__main__": 4}
+FLOORS = {"metrics": 0, "core": 1, "io": 2, "stages": 3, "settings": 4, "budget": 4, "card": 4, "pipeline": 4, "__main__": 4}
 LONGEST = 120
 
 

@@ -30,7 +30,7 @@ import numpy as np
 import onnxruntime as ort
 import torch
 
-from . import card
+from . import budget, card
 from . import settings as wsettings
 from .core.config import ModelConfig
 from .core.recipe import Recipe
@@ -44,7 +44,7 @@ from .stages.recover import recover
 
 # Files a trajectory view links to; plans are the view's own (`worldpack plan` writes them).
 TRAJECTORY_FILES = ("meta.json", "rgb.npy", "poses.npy", "actions.npy", "phase.npy", "depth.npy", "pose5.npy")
-TRAINING_STAGES = tuple(wsettings.BUDGET_SHARES)
+
 
 
 class StageFailed(Exception):
@@ -138,11 +138,26 @@ class Run:
             raise StageFailed(f"`worldpack {' '.join(args)}` exited {p.returncode}: {(p.stderr or p.stdout).strip()[-600:]}")
         return p.stdout
 
+    def split_views(self) -> tuple[list, list]:
+        """The training and held-out walks: the split's views once made, else what it will make."""
+        views = self.work / "data" / "train" / "index.json", self.work / "data" / "heldout" / "index.json"
+        if all(v.exists() for v in views):
+            return tuple(json.loads(v.read_text())["trajectories"] for v in views)
+        trajs = json.loads((self.data / "index.json").read_text())["trajectories"]
+        folder = self.settings["heldout"]["folder"]
+        if folder:
+            return trajs, json.loads((Path(folder) / "index.json").read_text())["trajectories"]
+        picked = budget.heldout_picks(len(trajs), self.settings["heldout"])
+        return [t for i, t in enumerate(trajs) if i not in picked], [t for i, t in enumerate(trajs) if i in picked]
+
+    def work_ahead(self) -> dict[str, float]:
+        return budget.work_ahead(self.settings, self.lineage["stages"], *self.split_views())
+
+    def training_pool(self) -> float:
+        return budget.training_pool(self.settings, self.lineage["stages"], self.work_ahead())
+
     def training_minutes(self, name: str) -> float:
-        """This stage's share of the budget, less what earlier sittings of it spent."""
-        s = self.settings
-        total = s["hours"] * 60 - s["reserve_minutes"]
-        return max(0.0, wsettings.BUDGET_SHARES[name] * total - self.stage(name)["minutes"])
+        return budget.training_minutes(self.settings, self.lineage["stages"], self.work_ahead(), name)
 
 
 # --- the stages -------------------------------------------------------------------------------
@@ -221,10 +236,7 @@ def split_stage(run: Run) -> dict:
         view_of(held_src, hindex["trajectories"], held_dir, hindex, "heldout")
         chosen = [t["dir"] for t in hindex["trajectories"]]
     else:
-        # Every k-th trajectory, so that each task and range keeps its share.
-        count = max(held["at_least"], round(held["share"] * len(trajs)))
-        every = len(trajs) / count
-        picked = {int(i * every + every / 2) for i in range(count)}
+        picked = budget.heldout_picks(len(trajs), held)
         view_of(run.data, [t for i, t in enumerate(trajs) if i not in picked], train_dir, index, "train")
         view_of(run.data, [t for i, t in enumerate(trajs) if i in picked], held_dir, index, "heldout")
         chosen = [trajs[i]["dir"] for i in sorted(picked)]
@@ -370,7 +382,11 @@ def heads_stage(run: Run) -> dict:
                warp_data=(train_split,))
         set_warp_frames(bare, run.settings["serving"]["warp_frames"])
     if not (folder / "data" / "truth.npy").exists():
-        run.worldpack("fusion-data", "--suite", str(train_split), "--model", str(bare), "--stride", str(h["stride"]),
+        # At most `heads.walks` of the training walks, spread over the suite, so that the
+        # data's minutes stay within what the budget set aside for them.
+        index = json.loads((train_split / "index.json").read_text())
+        view_of(run.data, budget.spread(index["trajectories"], h["walks"]), w / "data" / "heads", index, "heads")
+        run.worldpack("fusion-data", "--suite", str(w / "data" / "heads"), "--model", str(bare), "--stride", str(h["stride"]),
                       "--threads", str(run.settings["threads"]), "--out", str(folder / "data"))
     init = Path(fam["served"]) if fam and has_head(Path(fam["served"])) else None
     fusion.train([folder / "data"], folder / "kept", h["steps"], h["batch"], h["lr"], h["minutes"], 24, edge_weight=1.0,
@@ -512,7 +528,7 @@ def stages(run: Run, facts: dict) -> list:
         ("teacher", "WorldPack with the warp input (10 DDIM steps)", lambda: teacher_stage(run, f, run.training_minutes("teacher"))),
         ("student", "the 1-step student distilled from it", lambda: student_stage(run, run.training_minutes("student"))),
         ("adversarial", "the student against a discriminator (GPU only)",
-         lambda: adversarial_stage(run, run.training_minutes("student"))),
+         lambda: adversarial_stage(run, run.training_minutes("adversarial"))),
         ("heads", "the fusion head retrained on this world's frames", lambda: heads_stage(run)),
         ("export", "ONNX graphs, manifests and references", lambda: export_stage(run)),
         ("parity", "ONNX Runtime against the PyTorch references", lambda: parity_stage(run)),
@@ -565,6 +581,23 @@ def make(data: Path, out: Path, source: str | None, hours: float | None, device:
             sys.stdout, sys.stderr = sys.__stdout__, sys.__stderr__
 
 
+def print_budget(run: Run) -> None:
+    """How the budget divides, before any stage runs: a large dataset's fixed work is seen
+    before it has taken the training's minutes."""
+    total, ahead = run.settings["hours"] * 60, run.work_ahead()
+    spent = sum(v["minutes"] for v in run.lineage["stages"].values())
+    pool = run.training_pool() if budget.open_training(run.lineage["stages"]) else 0.0
+    if not any(budget.pending(run.lineage["stages"], name) for name in run.lineage["stages"]):
+        print(f"budget {total:.0f} min: {spent:.0f} spent, every stage done", flush=True)
+        return
+    parts = ", ".join(f"{k} {v:.0f}" for k, v in ahead.items() if v >= 0.5)
+    print(f"budget {total:.0f} min: {spent:.0f} spent, about {sum(ahead.values()):.0f} set aside for the work that is "
+          f"not training ({parts}), {pool:.0f} for training", flush=True)
+    if budget.open_training(run.lineage["stages"]) and pool < 0.3 * total:
+        print("note: the work sized by the dataset leaves training under a third of the budget; give more --hours, "
+              "or fewer walks to it (--set heads.walks=N, --set heldout.at_most=N)", flush=True)
+
+
 def drive(run: Run, facts: dict, notes: list[str]) -> None:
     torch.set_num_threads(run.settings["threads"])
     # The ONNX exporter's note, at every export, that torchvision's operators are not registered.
@@ -578,15 +611,16 @@ def drive(run: Run, facts: dict, notes: list[str]) -> None:
     plan = stages(run, facts)
     for name, _, _ in plan:
         run.stage(name)  # the lineage lists the stages in the order they run
+    print_budget(run)
     began = time.time()
     for i, (name, what, work) in enumerate(plan, 1):
         record = run.stage(name)
         if record["status"] in ("done", "skipped"):
             print(f"[{i}/{len(plan)}] {name}: {record['status']} ({record['minutes']:.1f} min), kept", flush=True)
             continue
-        budget = run.training_minutes(name) if name in TRAINING_STAGES else None
-        left = sum(run.training_minutes(n) for n in TRAINING_STAGES if run.stage(n)["status"] not in ("done", "skipped"))
-        print(f"[{i}/{len(plan)}] {name}: {what}" + (f" (budget {budget:.0f} min)" if budget is not None else "")
+        minutes = run.training_minutes(name) if name in budget.TRAINING_STAGES else None
+        left = run.training_pool() if budget.open_training(run.lineage["stages"]) else 0.0
+        print(f"[{i}/{len(plan)}] {name}: {what}" + (f" (budget {minutes:.0f} min)" if minutes is not None else "")
               + f"; training left at most {left:.0f} min, {(time.time() - began) / 60:.0f} min so far", flush=True)
         t0 = time.time()
         try:

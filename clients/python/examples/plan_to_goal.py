@@ -15,6 +15,8 @@ stop within `--reach` blocks and `--turn` degrees of the goal's.
     python clients/python/examples/plan_to_goal.py --url http://127.0.0.1:8081 --out runs/plan/baseline.json
     python clients/python/examples/plan_to_goal.py --compare runs/plan/served.json runs/plan/random.json
 
+Needs the client and the project's metrics (`pip install --no-deps -e train`: numpy only).
+
 Episodes (world seed `--first-world + e`): the agent looks round where it
 starts (12 turns of 30°, observed), then walks out `--out-steps` steps with
 small turns (observed). Half the goals were seen on the way out (the view
@@ -38,14 +40,10 @@ from pathlib import Path
 import numpy as np
 
 from worldpack_client import Client
+from worldpack_train.metrics import psnr
 
 # The planner's actions: one key or a turn of 15° per step.
 ACTIONS = [{"forward": True}, {"back": True}, {"left": True}, {"right": True}, {"yaw_deg": 15.0}, {"yaw_deg": -15.0}]
-
-
-def psnr(a: np.ndarray, b: np.ndarray) -> float:
-    mse = float(np.mean((a.astype(np.float64) - b.astype(np.float64)) ** 2))
-    return 100.0 if mse == 0 else min(100.0, 10 * np.log10(255.0**2 / mse))
 
 
 def yaw_of(pose: dict) -> float:
