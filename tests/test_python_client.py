@@ -299,7 +299,7 @@ def test_the_planning_example_runs_episodes_and_compares_them(server, tmp_path):
         run = json.loads((tmp_path / f"{policy}.json").read_text())
         assert [e["goal_seen"] for e in run["episodes"]] == [True, False]
         for e in run["episodes"]:
-            assert e["steps"] <= 2 and e["final_blocks"] >= 0 and isinstance(e["success"], bool), e
+            assert e["steps"] <= 2 and e["final_distance"] >= 0 and isinstance(e["success"], bool), e
     out = subprocess.run([sys.executable, str(example), "--compare", str(tmp_path / "model.json"), str(tmp_path / "random.json")],
                          capture_output=True, text=True, timeout=60)
     assert out.returncode == 0 and "paired over 2 episodes" in out.stdout, out.stdout + out.stderr

@@ -122,10 +122,14 @@ class Engine:
         holds the pose the engine reports, not the one asked for."""
         g = self.game
         g.send_game_command(f"warp {int(round(x))} {int(round(y))}")
-        *_, a = self.state()
-        # TURN_LEFT_RIGHT_DELTA turns right (clockwise) by its value in degrees.
-        turn = (a - angle_deg + 180.0) % 360.0 - 180.0
-        g.make_action([turn], 1)
+        # TURN_LEFT_RIGHT_DELTA turns right (clockwise) by its value in degrees. In the first
+        # tics after a map loads a turn may not take: turn until the engine reports the angle.
+        for _ in range(8):
+            *_, a = self.state()
+            turn = (a - angle_deg + 180.0) % 360.0 - 180.0
+            if abs(turn) < 0.5:
+                break
+            g.make_action([turn], 1)
         for _ in range(8):
             g.make_action([0.0], 1)
             x1, y1, z, cz, a = self.state()

@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 from pathlib import Path
 
@@ -46,82 +47,235 @@ from worldpack_train.metrics import psnr
 ACTIONS = [{"forward": True}, {"back": True}, {"left": True}, {"right": True}, {"yaw_deg": 15.0}, {"yaw_deg": -15.0}]
 
 
+# Per world: steps walked out, the view's PSNR against the goal at which the agent stops,
+# and how close (blocks or metres) a stop must be to count.
+DEFAULTS = {"voxel": {"out_steps": 6, "stop_db": 22.0, "reach": 0.5},
+            "doom": {"out_steps": 6, "stop_db": 30.0, "reach": 0.5}}
+
+
 def yaw_of(pose: dict) -> float:
     """Heading in the horizontal plane (degrees) of an answered pose's optical axis."""
     r = np.asarray(pose["rotation"], float)
     return float(np.degrees(np.arctan2(r[0][2], r[2][2])))
 
 
-def apart(a: dict, b: dict) -> tuple[float, float]:
-    """Horizontal distance (blocks) and heading difference (degrees) of two answered poses."""
-    pa, pb = np.asarray(a["position"]), np.asarray(b["position"])
-    turn = abs((yaw_of(a) - yaw_of(b) + 180.0) % 360.0 - 180.0)
-    return float(np.hypot(*(pa - pb)[[0, 2]])), turn
+class VoxelWorld:
+    """The server's synthetic voxel world (episode e in world seed `--first-world + e`):
+    acting is an observing step, and its renderer draws any pose, on a fork."""
+
+    actions = ACTIONS
+    unit = "blocks"
+
+    def __init__(self, c: Client, a):
+        self.c, self.a = c, a
+
+    def start(self, e: int, seen: bool, rng: np.random.Generator):
+        """A session that has looked round (when the goal was seen) and walked out; the goal's image and pose."""
+        c, world = self.c, self.a.first_world + e
+        s = c.create_session(synthetic_seed=world)
+        goal_session = c.fork(s) if not seen else None
+        if seen:
+            for _ in range(12):
+                c.step(s, {"yaw_deg": 30.0}, observe=True)
+        goal_index = c.session(s)["frames"] - 1
+        for i in range(self.a.out_steps):
+            # Turns of the planner's own 15°, so that the way back can be walked exactly.
+            c.step(s, {"forward": True, "yaw_deg": float(rng.choice([-15.0, 15.0])) if i % 3 == 2 else 0.0}, observe=True)
+        if seen:
+            goal_image, goal_pose = c.frame_image(s, goal_index), c.frame(s, goal_index)["pose"]
+        else:
+            # The start's view turned round, on a fork deleted at once: never in the session's memory.
+            for _ in range(6):
+                last = c.step(goal_session, {"yaw_deg": 30.0}, observe=True)
+            goal_image, goal_pose = last.image, last.raw["pose"]
+            c.delete_session(goal_session)
+        last = c.session(s)["frames"] - 1
+        return s, goal_image, goal_pose, c.frame_image(s, last), c.frame(s, last)["pose"]
+
+    def act(self, s: int, choice: int):
+        r = self.c.step(s, ACTIONS[choice], observe=True)
+        return r.image, r.raw["pose"]
+
+    def imagine(self, s: int, seqs: np.ndarray, goal: np.ndarray):
+        return self.c.imagine(s, [[ACTIONS[i] for i in seq] for seq in seqs], seed=self.a.seed, frames="none",
+                              goal=goal, steps=self.a.sampler_steps)
+
+    def rendered(self, s: int, seqs: np.ndarray, goal: np.ndarray) -> np.ndarray:
+        """Each sequence's last frame as the world draws it: a fork stepped by observation, then deleted."""
+        out = []
+        for seq in seqs:
+            f = self.c.fork(s)
+            for i in seq:
+                last = self.c.step(f, ACTIONS[i], observe=True)
+            self.c.delete_session(f)
+            out.append(psnr(last.image, goal))
+        return np.array(out)
+
+    @staticmethod
+    def apart(a: dict, b: dict) -> tuple[float, float]:
+        """Horizontal distance (blocks) and heading difference (degrees) of two answered poses."""
+        pa, pb = np.asarray(a["position"]), np.asarray(b["position"])
+        turn = abs((yaw_of(a) - yaw_of(b) + 180.0) % 360.0 - 180.0)
+        return float(np.hypot(*(pa - pb)[[0, 2]])), turn
+
+    def end(self, s: int) -> None:
+        self.c.delete_session(s)
+
+    def close(self) -> None:
+        pass
 
 
-def episode_start(c: Client, world: int, seen: bool, out_steps: int, rng: np.random.Generator):
-    """A session that has looked round (when the goal was seen) and walked out; the goal's image and pose."""
-    s = c.create_session(synthetic_seed=world)
-    goal_session = c.fork(s) if not seen else None
-    if seen:
-        for _ in range(12):
-            c.step(s, {"yaw_deg": 30.0}, observe=True)
-    goal_index = c.session(s)["frames"] - 1
-    for i in range(out_steps):
-        # Turns of the planner's own 15°, so that the way back can be walked exactly.
-        c.step(s, {"forward": True, "yaw_deg": float(rng.choice([-15.0, 15.0])) if i % 3 == 2 else 0.0}, observe=True)
-    if seen:
-        goal_image, goal_pose = c.frame_image(s, goal_index), c.frame(s, goal_index)["pose"]
-    else:
-        # The start's view turned round, on a fork deleted at once: never in the session's memory.
-        for _ in range(6):
-            last = c.step(goal_session, {"yaw_deg": 30.0}, observe=True)
-        goal_image, goal_pose = last.image, last.raw["pose"]
-        c.delete_session(goal_session)
-    return s, goal_image, goal_pose
+class DoomWorld:
+    """ViZDoom on the held-out maps (episode e on map `TEST_MAPS[e % 3]`): the agent looks
+    round at A (when the goal was seen), walks `--out-steps` steps straight out to B, turns
+    round (30° short of facing A, or 30° past) and plans its way back. The goal is A's view facing away from B: in memory
+    when the agent looked round, never observed otherwise (though what it shows was seen
+    from B). Acting renders the engine's frame at the new pose (a step into a wall stays
+    put) and observes it with its depth; the planner's candidates are dead-reckoned poses
+    (it does not know the walls) with their actions; the renderer draws any pose."""
+
+    # One walking step, a walking step steered 10° either way, or a turn in place of 15°
+    # (positive turns right), as the Doom suites walk.
+    actions = [{"forward": True}, {"forward": True, "yaw_deg": 10.0}, {"forward": True, "yaw_deg": -10.0},
+               {"yaw_deg": 15.0}, {"yaw_deg": -15.0}]
+    unit = "m"
+
+    def __init__(self, c: Client, a):
+        # Imported here: only a Doom run needs the Doom tool (the checkout's doom/, with vizdoom).
+        sys.path.insert(0, str(Path(__file__).resolve().parents[3] / "doom"))
+        from worldpack_doom import engine, suite, walk
+        self.E, self.S, self.W = engine, suite, walk
+        self.c, self.a, self.engines, self.state = c, a, {}, {}
+
+    def world(self, map_name: str):
+        if map_name not in self.engines:
+            engine = self.E.Engine(map_name, seed=0)
+            self.engines[map_name] = (engine, self.W.Geometry(engine.sectors()))
+        return self.engines[map_name]
+
+    def frame(self, engine, x: float, y: float, angle: float):
+        view = engine.view_at(x, y, angle)
+        rgb, depth = self.S.to_frame(view)
+        return rgb, depth, self.E.map_to_world(view.c2m())
+
+    def start(self, e: int, seen: bool, rng: np.random.Generator):
+        map_name = self.S.TEST_MAPS[e % len(self.S.TEST_MAPS)]
+        engine, geom = self.world(map_name)
+        W, out = self.W, self.a.out_steps
+        # A straight walk out, so that the goal's pose lies on the actions' lattice (turns of 5°
+        # multiples, steps of one length) and can be reached exactly.
+        for p, angle in W.start_points(engine.sectors(), geom, 40, rng):
+            line = [p + k * W.WALK_STEP * W.heading_vector(angle) for k in range(out + 1)]
+            if all(geom.free(u, v) for u, v in zip(line, line[1:])):
+                break
+        else:
+            raise SystemExit(f"{map_name}: no free straight walk of {out} steps from 40 starting points")
+        poses = [(p, angle)] + ([(p, angle - W.TURN_STEP * (k + 1)) for k in range(int(360 / W.TURN_STEP))] if seen else [])
+        poses += [(x, angle) for x in line[1:]]
+        x, a_ = line[-1], angle
+        # Turn round at B, 30° short or past: the agent must find which way to turn back.
+        for _ in range(int(180 / W.TURN_STEP) + int(rng.choice([-2, 2]))):
+            a_ -= W.TURN_STEP
+            poses.append((x, a_))
+        rgb, depth, pose = self.frame(engine, *p, angle)
+        s = self.c.create_session(frames=[(rgb, pose)], intrinsics=self.S.intrinsics())
+        for (q, qa), (pq, pa) in zip(poses[1:], poses[:-1]):
+            rgb, depth, pose = self.frame(engine, *q, qa)
+            moved = not np.allclose(q, pq)
+            yaw = (pa - qa + 180.0) % 360.0 - 180.0
+            self.c.observe(s, rgb, pose, depth_mm=depth, action={"forward": bool(moved), "yaw_deg": float(yaw)})
+        goal_image, _, _ = self.frame(engine, *p, angle + 180.0)
+        self.state[s] = (map_name, np.asarray(x, float), a_)
+        return s, goal_image, (p, angle + 180.0), rgb, (x, a_)
+
+    def move(self, geom, x: np.ndarray, angle: float, choice: int, walls: bool):
+        act = self.actions[choice]
+        angle = angle - act.get("yaw_deg", 0.0)
+        if act.get("forward"):
+            q = x + self.W.WALK_STEP * self.W.heading_vector(angle)
+            if not walls or geom.free(x, q):
+                x = q
+        return x, angle
+
+    def act(self, s: int, choice: int):
+        map_name, x, angle = self.state[s]
+        engine, geom = self.world(map_name)
+        x, angle = self.move(geom, x, angle, choice, walls=True)
+        rgb, depth, pose = self.frame(engine, *x, angle)
+        self.c.observe(s, rgb, pose, depth_mm=depth, action=self.actions[choice])
+        self.state[s] = (map_name, x, angle)
+        return rgb, (x, angle)
+
+    def imagine(self, s: int, seqs: np.ndarray, goal: np.ndarray):
+        map_name, x0, a0 = self.state[s]
+        poses = []
+        for seq in seqs:
+            x, angle, track = x0, a0, []
+            for i in seq:
+                x, angle = self.move(None, x, angle, int(i), walls=False)
+                track.append(self.E.map_to_world(self.E.camera_to_map(*x, self.E.EYE_HEIGHT, angle)))
+            poses.append(track)
+        return self.c.imagine(s, [[self.actions[i] for i in seq] for seq in seqs], poses=poses, seed=self.a.seed,
+                              frames="none", goal=goal, steps=self.a.sampler_steps)
+
+    def rendered(self, s: int, seqs: np.ndarray, goal: np.ndarray) -> np.ndarray:
+        map_name, x0, a0 = self.state[s]
+        engine, geom = self.world(map_name)
+        out = []
+        for seq in seqs:
+            x, angle = x0, a0
+            for i in seq:
+                x, angle = self.move(geom, x, angle, int(i), walls=True)
+            out.append(psnr(self.frame(engine, *x, angle)[0], goal))
+        return np.array(out)
+
+    def apart(self, a, b) -> tuple[float, float]:
+        """Distance (metres) and heading difference (degrees) of two (map point, angle) poses."""
+        (pa, aa), (pb, ab) = a, b
+        return float(np.linalg.norm(np.asarray(pa) - np.asarray(pb)) / self.E.UNITS_PER_METRE), \
+            abs((aa - ab + 180.0) % 360.0 - 180.0)
+
+    def end(self, s: int) -> None:
+        self.state.pop(s, None)
+        self.c.delete_session(s)
+
+    def close(self) -> None:
+        for engine, _ in self.engines.values():
+            engine.close()
 
 
-def cem(c: Client, s: int, goal: np.ndarray, a, rng: np.random.Generator) -> tuple[int, float]:
-    """The first action of the best sequence the cross-entropy method finds (index into ACTIONS), and its score."""
-    probs = np.full((a.horizon, len(ACTIONS)), 1.0 / len(ACTIONS))
+def cem(world, s: int, goal: np.ndarray, a, rng: np.random.Generator) -> tuple[int, float]:
+    """The first action of the best sequence the cross-entropy method finds (index into the world's actions), and its score."""
+    n = len(world.actions)
+    probs = np.full((a.horizon, n), 1.0 / n)
     best, best_score = None, -np.inf
     for _ in range(a.iterations):
-        seqs = np.array([[rng.choice(len(ACTIONS), p=p) for p in probs] for _ in range(a.candidates)])
-        scores = score(c, s, goal, seqs, a)
+        seqs = np.array([[rng.choice(n, p=p) for p in probs] for _ in range(a.candidates)])
+        scores = score(world, s, goal, seqs, a)
         order = np.argsort(-scores)
         if scores[order[0]] > best_score:
             best, best_score = seqs[order[0]], float(scores[order[0]])
         elites = seqs[order[: a.elites]]
-        probs = np.stack([np.bincount(elites[:, h], minlength=len(ACTIONS)) + 0.5 for h in range(a.horizon)])
+        probs = np.stack([np.bincount(elites[:, h], minlength=n) + 0.5 for h in range(a.horizon)])
         probs /= probs.sum(axis=1, keepdims=True)
     return int(best[0]), best_score
 
 
-def score(c: Client, s: int, goal: np.ndarray, seqs: np.ndarray, a) -> np.ndarray:
+def score(world, s: int, goal: np.ndarray, seqs: np.ndarray, a) -> np.ndarray:
     """Each sequence's last frame against the goal, higher is closer: imagined by the
-    served model, or (`--policy truth`) observed in the world on a fork."""
+    served model, or (`--policy truth`) drawn by the world's renderer."""
     if a.policy == "truth":
-        out = []
-        for seq in seqs:
-            f = c.fork(s)
-            for i in seq:
-                last = c.step(f, ACTIONS[i], observe=True)
-            c.delete_session(f)
-            out.append(psnr(last.image, goal))
-        return np.array(out)
-    plans = [[ACTIONS[i] for i in seq] for seq in seqs]
-    r = c.imagine(s, plans, seed=a.seed, frames="none", goal=goal, steps=a.sampler_steps)
+        return world.rendered(s, seqs, goal)
+    r = world.imagine(s, seqs, goal)
     if a.score == "latent":
         return np.array([-ro.goal["latent_mse"] for ro in r.rollouts])
     return np.array([ro.goal["psnr_db"] for ro in r.rollouts])
 
 
-def run_episode(c: Client, e: int, a) -> dict:
+def run_episode(world, e: int, a) -> dict:
     rng = np.random.default_rng(a.first_world + e)
     seen = e % 2 == 0
-    s, goal, goal_pose = episode_start(c, a.first_world + e, seen, a.out_steps, rng)
-    start_pose = c.frame(s, c.session(s)["frames"] - 1)["pose"]
-    view = c.frame_image(s, c.session(s)["frames"] - 1)
+    s, goal, goal_pose, view, start_pose = world.start(e, seen, rng)
     pose, steps, decide_s, stopped = start_pose, 0, [], False
     while steps < a.max_steps:
         if psnr(view, goal) >= a.stop_db:
@@ -129,18 +283,18 @@ def run_episode(c: Client, e: int, a) -> dict:
             break
         t = time.perf_counter()
         if a.policy == "random":
-            choice = int(rng.integers(len(ACTIONS)))
+            choice = int(rng.integers(len(world.actions)))
         else:
-            choice, _ = cem(c, s, goal, a, rng)
+            choice, _ = cem(world, s, goal, a, rng)
         decide_s.append(time.perf_counter() - t)
-        r = c.step(s, ACTIONS[choice], observe=True)
-        view, pose, steps = r.image, r.raw["pose"], steps + 1
-    reach, turn = apart(pose, goal_pose)
-    start_reach, start_turn = apart(start_pose, goal_pose)
-    c.delete_session(s)
+        view, pose = world.act(s, choice)
+        steps += 1
+    reach, turn = world.apart(pose, goal_pose)
+    start_reach, start_turn = world.apart(start_pose, goal_pose)
+    world.end(s)
     return {"episode": e, "world": a.first_world + e, "goal_seen": seen, "stopped": stopped, "steps": steps,
-            "success": bool(stopped and reach <= a.reach and turn <= a.turn), "final_blocks": reach, "final_deg": turn,
-            "start_blocks": start_reach, "start_deg": start_turn, "final_psnr_db": psnr(view, goal),
+            "success": bool(stopped and reach <= a.reach and turn <= a.turn), "final_distance": reach, "final_deg": turn,
+            "start_distance": start_reach, "start_deg": start_turn, "final_psnr_db": psnr(view, goal),
             "decide_s_median": float(np.median(decide_s)) if decide_s else 0.0}
 
 
@@ -156,7 +310,7 @@ def summary(rows: list[dict]) -> str:
     for name, sel in [("all", rows), ("goal seen", [r for r in rows if r["goal_seen"]]), ("goal unseen", [r for r in rows if not r["goal_seen"]])]:
         if sel:
             lines.append(f"{name:<12} success {np.mean([r['success'] for r in sel]):.2f} of {len(sel)}, steps {np.mean([r['steps'] for r in sel]):.1f}, "
-                         f"final {np.mean([r['final_blocks'] for r in sel]):.2f} blocks / {np.mean([r['final_deg'] for r in sel]):.0f}°")
+                         f"final {np.mean([r['final_distance'] for r in sel]):.2f} away / {np.mean([r['final_deg'] for r in sel]):.0f}°")
     return "\n".join(lines)
 
 
@@ -165,7 +319,7 @@ def compare(a_path: str, b_path: str) -> None:
     by = {r["episode"]: r for r in b["episodes"]}
     pairs = [(r, by[r["episode"]]) for r in a["episodes"] if r["episode"] in by]
     print(f"{a['label']} − {b['label']}, paired over {len(pairs)} episodes (mean [95% interval]):")
-    for what, key in [("success", "success"), ("steps", "steps"), ("final distance (blocks)", "final_blocks")]:
+    for what, key in [("success", "success"), ("steps", "steps"), ("final distance", "final_distance")]:
         m, lo, hi = bootstrap(np.array([float(x[key]) - float(y[key]) for x, y in pairs]))
         print(f"  {what:<24} {m:+.2f} [{lo:+.2f}, {hi:+.2f}]")
 
@@ -176,8 +330,12 @@ def main():
     ap.add_argument("--policy", choices=["model", "random", "truth"], default="model",
                     help="plan with the server's model, act at random, or plan with the world's renderer")
     ap.add_argument("--episodes", type=int, default=8)
-    ap.add_argument("--first-world", type=int, default=100, help="episode e is in synthetic world first-world + e")
-    ap.add_argument("--out-steps", type=int, default=6, help="steps walked out before the agent plans its way to the goal")
+    ap.add_argument("--world", choices=["voxel", "doom"], default="voxel",
+                    help="the server's synthetic voxel world, or ViZDoom's held-out maps (serve a Doom model)")
+    ap.add_argument("--first-world", type=int, default=100,
+                    help="episode e draws its world (voxel: synthetic seed) or its start (Doom) from first-world + e")
+    ap.add_argument("--out-steps", type=int, default=None,
+                    help="steps walked out before the agent plans its way to the goal (voxel 6, Doom 6)")
     ap.add_argument("--max-steps", type=int, default=20)
     ap.add_argument("--candidates", type=int, default=6)
     ap.add_argument("--horizon", type=int, default=2)
@@ -185,8 +343,10 @@ def main():
     ap.add_argument("--elites", type=int, default=3)
     ap.add_argument("--score", choices=["psnr", "latent"], default="psnr", help="the imagined last frame against the goal")
     ap.add_argument("--sampler-steps", type=int, default=None)
-    ap.add_argument("--stop-db", type=float, default=22.0, help="stop when the view's PSNR against the goal reaches this")
-    ap.add_argument("--reach", type=float, default=0.5, help="success: within this many blocks of the goal's position")
+    ap.add_argument("--stop-db", type=float, default=None,
+                    help="stop when the view's PSNR against the goal reaches this (voxel 22, Doom 30: a Doom view a step from the goal's scores 24 to 34)")
+    ap.add_argument("--reach", type=float, default=None,
+                    help="success: within this distance of the goal's position (voxel 0.5 blocks, Doom 0.5 m)")
     ap.add_argument("--turn", type=float, default=20.0, help="and this many degrees of its heading")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--label", default=None)
@@ -196,15 +356,21 @@ def main():
     if a.compare:
         compare(*a.compare)
         return
-    c = Client(a.url)
+    for key, value in DEFAULTS[a.world].items():
+        if getattr(a, key) is None:
+            setattr(a, key, value)
+    world = (DoomWorld if a.world == "doom" else VoxelWorld)(Client(a.url), a)
     label = a.label or f"{a.policy} @ {a.url}"
     rows = []
-    for e in range(a.episodes):
-        r = run_episode(c, e, a)
-        rows.append(r)
-        print(f"episode {e:2d} world {r['world']} goal {'seen' if r['goal_seen'] else 'unseen':<6} {'success' if r['success'] else 'miss   '} "
-              f"in {r['steps']:2d} steps; {r['start_blocks']:.2f} → {r['final_blocks']:.2f} blocks, {r['start_deg']:.0f} → {r['final_deg']:.0f}°, "
-              f"decision {r['decide_s_median']:.2f} s")
+    try:
+        for e in range(a.episodes):
+            r = run_episode(world, e, a)
+            rows.append(r)
+            print(f"episode {e:2d} goal {'seen' if r['goal_seen'] else 'unseen':<6} {'success' if r['success'] else 'miss   '} "
+                  f"in {r['steps']:2d} steps; {r['start_distance']:.2f} → {r['final_distance']:.2f} {world.unit}, "
+                  f"{r['start_deg']:.0f} → {r['final_deg']:.0f}°, decision {r['decide_s_median']:.2f} s", flush=True)
+    finally:
+        world.close()
     print(summary(rows))
     if a.out:
         Path(a.out).parent.mkdir(parents=True, exist_ok=True)
