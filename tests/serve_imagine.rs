@@ -133,6 +133,34 @@ fn a_goal_image_scores_the_candidates() {
     assert!(r["candidates"][0]["frames"].as_array().unwrap().is_empty());
 }
 
+/// Scored by latents alone, a last step whose frame is not answered is not decoded: no PSNR,
+/// and (this model has no heads, so a step's memory keeps the sampled latent) the same
+/// latent difference as when it is decoded.
+#[test]
+fn a_goal_scored_by_latents_alone_leaves_the_last_step_undecoded() {
+    let s = Server::start(&temp_store("imagine-latent-goal"), &[]);
+    let id = session(&s, 6);
+    let goal = {
+        use base64::Engine;
+        base64::engine::general_purpose::STANDARD.encode(s.bytes(&format!("/v1/sessions/{id}/frames/0/image")))
+    };
+    let candidates = json!([{ "actions": [{ "forward": true }, { "yaw_deg": 15 }] }, { "actions": [{ "yaw_deg": -30 }, { "forward": true }] }]);
+    let ask = |extra: Value| {
+        let mut body = json!({ "candidates": candidates, "goal_png": goal, "seed": 3 });
+        body.as_object_mut().unwrap().extend(extra.as_object().unwrap().clone());
+        imagine(&s, id, body)
+    };
+    let both = ask(json!({ "frames": "none" }));
+    let latent = ask(json!({ "frames": "none", "goal_score": "latent" }));
+    let shown = ask(json!({ "frames": "last", "goal_score": "latent" }));
+    for k in 0..2 {
+        let (b, l) = (&both["candidates"][k]["goal"], &latent["candidates"][k]["goal"]);
+        assert!(b["psnr_db"].as_f64().is_some() && l["psnr_db"].is_null(), "{b} {l}");
+        assert_eq!(b["latent_mse"], l["latent_mse"], "candidate {k}");
+        assert!(shown["candidates"][k]["frames"][0]["image_png"].is_string() && shown["candidates"][k]["goal"]["psnr_db"].is_null());
+    }
+}
+
 #[test]
 fn bad_candidates_horizons_and_sizes_are_refused_naming_the_field() {
     let s = Server::start(&temp_store("imagine-bad"), &[]);
@@ -157,6 +185,7 @@ fn bad_candidates_horizons_and_sizes_are_refused_naming_the_field() {
         (json!({ "candidates": [one.clone()], "steps": 0 }), "steps"),
         (json!({ "candidates": [one.clone()], "seed": u64::MAX }), "seed"),
         (json!({ "candidates": [one.clone()], "goal_png": "not base64!" }), "goal_png"),
+        (json!({ "candidates": [one.clone()], "goal_score": "ssim" }), "goal_score"),
         (json!({ "candidates": vec![json!({ "actions": vec![json!({}); 64] }); 64], "frames": "all" }), "frames"),
     ];
     for (body, field) in cases {

@@ -185,6 +185,15 @@ impl Drop for StepDown<'_> {
 
 /// One `Model::predict` over `items`, each with its own frames and warp sources.
 pub fn call(model: &Model, packing: &Packing, sampler: &Sampler, items: &[&Item]) -> Result<Vec<Outcome>, ModelError> {
+    call_with(model, packing, sampler, items, true)
+}
+
+/// As [`call`], stopping at the sampled latents (`Model::predict_latents`): the frames' `rgb` is empty.
+pub fn call_latents(model: &Model, packing: &Packing, sampler: &Sampler, items: &[&Item]) -> Result<Vec<Outcome>, ModelError> {
+    call_with(model, packing, sampler, items, false)
+}
+
+fn call_with(model: &Model, packing: &Packing, sampler: &Sampler, items: &[&Item], decode: bool) -> Result<Vec<Outcome>, ModelError> {
     let warps: Vec<Vec<WarpSource>> = items
         .iter()
         .map(|it| it.warp.iter().map(|w| WarpSource { rgb: &w.rgb, depth_mm: &w.depth_mm, pose: &w.pose, intrinsics: &w.intrinsics }).collect())
@@ -197,7 +206,7 @@ pub fn call(model: &Model, packing: &Packing, sampler: &Sampler, items: &[&Item]
     let lookup = |i: usize, id: u64| {
         items[i].frames.get(&id).map(|f| ContextFrame { latent: &f.latent, time: f.time, pose: &f.pose, generated: f.generated })
     };
-    let p = model.predict(packing, &requests, &lookup, sampler)?;
+    let p = if decode { model.predict(packing, &requests, &lookup, sampler)? } else { model.predict_latents(packing, &requests, &lookup, sampler)? };
     let n = items.len();
     Ok(p.frames
         .into_iter()

@@ -59,11 +59,20 @@ pub struct Imagination {
     pub decode_ms: f64,
 }
 
+/// What an imagined rollout's last step must give: the frame (decoded, with
+/// the heads, as a step's), or only the sampled latent.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Last {
+    Frame,
+    Latent,
+}
+
 /// A frame against a goal image: PSNR of the pictures (dB, higher is
 /// closer) and the mean squared difference of the model's latents (lower is closer).
 #[derive(Clone, Copy, Debug)]
 pub struct GoalScore {
-    pub psnr_db: f64,
+    /// None for a frame not decoded.
+    pub psnr_db: Option<f64>,
     pub latent_mse: f64,
 }
 
@@ -72,7 +81,9 @@ impl Engine {
     /// horizon; the caller checks the lengths). The noise seed of step h is
     /// `seed + h`, or, without a seed, the frame's time, as a step's is: a
     /// candidate imagined alone equals a fork stepped with those seeds.
-    pub fn imagine(&self, s: &Session, candidates: &[Candidate], sampler: &Sampler, seed: Option<u64>) -> Result<Imagination, EngineError> {
+    /// `last` says what the last step needs: nothing reads its frame again, so
+    /// when only its latent is wanted it is not decoded (`rgb` empty).
+    pub fn imagine(&self, s: &Session, candidates: &[Candidate], sampler: &Sampler, seed: Option<u64>, last: Last) -> Result<Imagination, EngineError> {
         let m = self.model()?;
         let horizon = candidates.first().map_or(0, |c| c.actions.len());
         let base = s.timeline();
@@ -92,7 +103,11 @@ impl Engine {
                 .collect::<Result<Vec<Next>, _>>()?;
             out.select_ms += ms(t0);
             let items: Vec<&Item> = nexts.iter().map(|n| &n.item).collect();
-            let outcomes = batch::call(m, &s.policy.packing, sampler, &items)?;
+            let outcomes = if h + 1 == horizon && last == Last::Latent {
+                batch::call_latents(m, &s.policy.packing, sampler, &items)?
+            } else {
+                batch::call(m, &s.policy.packing, sampler, &items)?
+            };
             out.calls += 1;
             if let Some(o) = outcomes.first() {
                 out.warp_ms += o.warp_ms;
@@ -115,8 +130,8 @@ impl Engine {
 pub fn goal_score(frame: &Imagined, goal_rgb: &[u8], goal_latent: &[f32]) -> GoalScore {
     let n = goal_latent.len().min(frame.latent.len()).max(1);
     let latent_mse = frame.latent.iter().zip(goal_latent).map(|(a, b)| f64::from(a - b).powi(2)).sum::<f64>() / n as f64;
-    // The route checks the goal's size; a mismatch still never panics here.
-    let psnr_db = if frame.rgb.len() == goal_rgb.len() { eval::metrics::psnr(&frame.rgb, goal_rgb) } else { f64::NAN };
+    // A frame not decoded (`Last::Latent`) has no picture to score; the route checks the goal's size.
+    let psnr_db = (!frame.rgb.is_empty() && frame.rgb.len() == goal_rgb.len()).then(|| eval::metrics::psnr(&frame.rgb, goal_rgb));
     GoalScore { psnr_db, latent_mse }
 }
 

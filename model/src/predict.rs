@@ -86,6 +86,32 @@ impl Model {
         frame: &dyn Fn(usize, u64) -> Option<ContextFrame<'a>>,
         sampler: &Sampler,
     ) -> Result<Prediction, ModelError> {
+        self.predict_with(packing, requests, frame, sampler, true)
+    }
+
+    /// As [`Model::predict`], but stops at the sampled latents: nothing is
+    /// decoded, fused or re-encoded, and each frame's `rgb` is empty. For a
+    /// frame nobody looks at and nothing reads again (an imagined rollout's
+    /// last step scored in latent space); its latent is the sampler's, not the
+    /// re-encoded frame a step's memory keeps.
+    pub fn predict_latents<'a>(
+        &self,
+        packing: &Packing,
+        requests: &[Request],
+        frame: &dyn Fn(usize, u64) -> Option<ContextFrame<'a>>,
+        sampler: &Sampler,
+    ) -> Result<Prediction, ModelError> {
+        self.predict_with(packing, requests, frame, sampler, false)
+    }
+
+    fn predict_with<'a>(
+        &self,
+        packing: &Packing,
+        requests: &[Request],
+        frame: &dyn Fn(usize, u64) -> Option<ContextFrame<'a>>,
+        sampler: &Sampler,
+        decode: bool,
+    ) -> Result<Prediction, ModelError> {
         let layout = self.layout_for(packing)?;
         let manifest = self.manifest();
         let width = manifest.action.dim;
@@ -121,10 +147,14 @@ impl Model {
         let cond = Conditioning { context: &context, action: &action, rel_time: &rel_time };
         let latent = self.sample(&layout.name, &cond, sampler, &seeds)?;
         let sample_ms = started.elapsed().as_secs_f64() * 1e3;
+        let per = latent.data.len() / requests.len();
+        if !decode {
+            let frames = (0..requests.len()).map(|j| Predicted { latent: latent.data[j * per..(j + 1) * per].to_vec(), rgb: Vec::new() }).collect();
+            return Ok(Prediction { frames, layout: layout.name.clone(), warp_ms, sample_ms, decode_ms: 0.0 });
+        }
         let started = Instant::now();
         let mut images = self.decode(&latent)?;
         let mut latent = latent;
-        let per = latent.data.len() / requests.len();
         let fused: Vec<usize> = (0..warps.len()).filter(|&j| warps[j].is_some()).collect();
         if manifest.fusion.is_some() && !fused.is_empty() {
             let (shown, kept) = self.fuse(images, requests, &fused)?;

@@ -19,7 +19,7 @@ use world::picture::encode_png;
 
 use crate::auth::Caller;
 use crate::error::{ApiError, ErrorBody};
-use crate::imagine::{Candidate, goal_score};
+use crate::imagine::{Candidate, Last, goal_score};
 use crate::schemas;
 use super::request::{parse, session_id, check_id, decode_png, pose_from, sampler, validate_action};
 use super::access::{slot, lock, permit, blocking};
@@ -51,6 +51,18 @@ pub struct ImagineRequest {
     #[serde(default)]
     #[schema(content_encoding = "base64")]
     goal_png: Option<String>,
+    /// How the goal is scored: `"both"` (the default: PSNR of the pictures and the latents' difference) or
+    /// `"latent"` (the latents' only: unless its frame is answered, the last step is then not decoded).
+    #[serde(default)]
+    goal_score: GoalScoring,
+}
+
+#[derive(Deserialize, ToSchema, Clone, Copy, Debug, Default, PartialEq)]
+#[serde(rename_all = "lowercase")]
+pub enum GoalScoring {
+    #[default]
+    Both,
+    Latent,
 }
 
 /// One candidate: an action per step, or a pose per step, or both (the same length).
@@ -159,7 +171,8 @@ fn candidates(input: &[CandidateInput], limits: &crate::imagine::Limits) -> Res<
                    candidates, steps and the bytes of frames answered (400 naming the field beyond them). The session, its memory and the \
                    store are left as they were. With a \
                    goal image, each candidate's last frame is scored against it: PSNR of the pictures (dB, higher is closer) and the mean \
-                   squared difference of the model's latents (lower is closer).",
+                   squared difference of the model's latents (lower is closer); scored by latents alone, a last step whose frame is not \
+                   answered is not decoded.",
     params(("id" = u64, Path, description = "session id", minimum = 0, maximum = 9223372036854775807_u64)),
     request_body = ImagineRequest,
     responses(
@@ -207,11 +220,14 @@ pub async fn imagine(State(st): St, caller: Caller, id: Result<Path<u64>, PathRe
         }
         None => None,
     };
+    // The last step's frame is decoded only when someone looks at it: answered, or scored as a picture.
+    let pictured = steps.last() == Some(&(horizon - 1)) || (goal.is_some() && req.goal_score == GoalScoring::Both);
+    let last = if pictured { Last::Frame } else { Last::Latent };
     let slot = slot(&st, id, &caller)?;
     let s = lock(&st, &slot).await?;
     let _permit = permit(&st)?;
     let st2 = st.clone();
-    let format = req.format;
+    let (format, scoring) = (req.format, req.goal_score);
     let mut out = blocking(move || {
         let e = &st2.engine;
         let goal = goal
@@ -220,7 +236,7 @@ pub async fn imagine(State(st): St, caller: Caller, id: Result<Path<u64>, PathRe
                 Ok::<_, ApiError>((rgb, latent))
             })
             .transpose()?;
-        let imagined = e.imagine(&s, &candidates, &sampler, req.seed)?;
+        let imagined = e.imagine(&s, &candidates, &sampler, req.seed, last)?;
         let t = Instant::now();
         let answers = imagined
             .rollouts
@@ -238,7 +254,7 @@ pub async fn imagine(State(st): St, caller: Caller, id: Result<Path<u64>, PathRe
                         ImaginedFrame { step: h, index: s.len() + h as u64, time: f.time, image_png, latent }
                     })
                     .collect(),
-                goal: goal.as_ref().and_then(|(rgb, lat)| rollout.last().map(|f| goal_score(f, rgb, lat))).map(|g| GoalAnswer { psnr_db: g.psnr_db, latent_mse: g.latent_mse }),
+                goal: goal.as_ref().and_then(|(rgb, lat)| rollout.last().map(|f| goal_score(f, rgb, lat))).map(|g| GoalAnswer { psnr_db: g.psnr_db.filter(|_| scoring == GoalScoring::Both), latent_mse: g.latent_mse }),
             })
             .collect();
         Ok(ImagineAnswer {
@@ -313,8 +329,8 @@ pub struct ImaginedFrame {
 /// A frame against the goal image.
 #[derive(Serialize, ToSchema)]
 pub struct GoalAnswer {
-    /// PSNR of the pictures, dB (higher is closer; 100 when equal).
-    pub psnr_db: f64,
+    /// PSNR of the pictures, dB (higher is closer; 100 when equal); null with `goal_score` `"latent"`.
+    pub psnr_db: Option<f64>,
     /// Mean squared difference of the model's latents (lower is closer).
     pub latent_mse: f64,
 }

@@ -98,7 +98,7 @@ class VoxelWorld:
 
     def imagine(self, s: int, seqs: np.ndarray, goal: np.ndarray):
         return self.c.imagine(s, [[ACTIONS[i] for i in seq] for seq in seqs], seed=self.a.seed, frames="none",
-                              goal=goal, steps=self.a.sampler_steps)
+                              goal=goal, goal_score=goal_scoring(self.a), steps=self.a.sampler_steps)
 
     def rendered(self, s: int, seqs: np.ndarray, goal: np.ndarray) -> np.ndarray:
         """Each sequence's last frame as the world draws it: a fork stepped by observation, then deleted."""
@@ -216,7 +216,7 @@ class DoomWorld:
                 track.append(self.E.map_to_world(self.E.camera_to_map(*x, self.E.EYE_HEIGHT, angle)))
             poses.append(track)
         return self.c.imagine(s, [[self.actions[i] for i in seq] for seq in seqs], poses=poses, seed=self.a.seed,
-                              frames="none", goal=goal, steps=self.a.sampler_steps)
+                              frames="none", goal=goal, goal_score=goal_scoring(self.a), steps=self.a.sampler_steps)
 
     def rendered(self, s: int, seqs: np.ndarray, goal: np.ndarray) -> np.ndarray:
         map_name, x0, a0 = self.state[s]
@@ -242,6 +242,11 @@ class DoomWorld:
     def close(self) -> None:
         for engine, _ in self.engines.values():
             engine.close()
+
+
+def goal_scoring(a) -> str:
+    """Scored in latent space, the server need not decode the last imagined step."""
+    return "latent" if a.score == "latent" else "both"
 
 
 def cem(world, s: int, goal: np.ndarray, a, rng: np.random.Generator) -> tuple[int, float]:

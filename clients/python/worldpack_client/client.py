@@ -253,14 +253,17 @@ class Client:
     def imagine(self, session: int, actions: Sequence[Sequence[Mapping[str, Any]]] | None = None, *,
                 poses: Sequence[Sequence[Pose | np.ndarray]] | None = None, steps: int | None = None,
                 seed: int | None = None, frames: str | int = "last", format: str = "png",
-                goal: np.ndarray | bytes | None = None) -> Imagined:
+                goal: np.ndarray | bytes | None = None, goal_score: str = "both") -> Imagined:
         """Rolls out candidate futures from the session's present without writing to it:
         `actions[k]` is candidate k's action per step, `poses[k]` (optionally, or instead)
         its pose per step; every candidate has the same number of steps. `frames` is
         "last", "all", "none" or n (every n-th step); `format` "png" (images) or "latent"
         (the model's latents). With `goal` (an image at the model's size) each candidate's
-        last frame is scored against it. Step h of every candidate uses noise seed
-        `seed + h` (default: the frame's time), as stepping a fork with those seeds would."""
+        last frame is scored against it: `goal_score` "both" (PSNR and the latents'
+        difference) or "latent" (the latents' only; the last step is then not decoded
+        unless its frame is answered, and `psnr_db` is None). Step h of every candidate
+        uses noise seed `seed + h` (default: the frame's time), as stepping a fork with
+        those seeds would."""
         count = len(actions) if actions is not None else len(poses or [])
         candidates: list[dict[str, Any]] = [{} for _ in range(count)]
         if actions is not None:
@@ -279,6 +282,7 @@ class Client:
             body["seed"] = int(seed)
         if goal is not None:
             body["goal_png"] = b64(png_bytes(goal))
+            body["goal_score"] = goal_score
         r = self.request("POST", f"/v1/sessions/{session}/imagine", body)
         shape = r.get("latent_shape")
 
