@@ -2,16 +2,25 @@
 
     figures.py save NAME RESULTS.json --command CMD    # an eval's summary -> docs/figures/NAME.json
     figures.py save-json NAME REPORT.json --command CMD  # a benchmark's JSON -> docs/figures/NAME.json
-    figures.py render [--check]                        # README.md's table between its markers
+    figures.py render [--check]                        # README.md's table, and every page's figure spans
 
 Each figure has one source, docs/figures/NAME.json, holding the command that made it;
-tests/test_figures.py runs `render --check`, so a README figure cannot drift from its run.
+tests/test_figures.py runs `render --check`, so a page's figure cannot drift from its run.
+Elsewhere than the README's table a page quotes a figure as a span,
+
+    <!--fig NAME PATH FORMAT-->15.34<!--/fig-->
+
+NAME a file of docs/figures, PATH the dotted keys to the value in it (list items by
+index, -1 the last), FORMAT its digits: `2` (15.34), `+2` (+1.80), `ci2` (15.34 [14.73,
+16.08]) or `ci+2` (+1.80 [+1.49, +2.16]) for an interval, `neg` before any of them for the
+other sign (B − A of a saved A − B). `render` writes the spans' text.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import re
 import sys
 from pathlib import Path
 
@@ -22,6 +31,12 @@ FIGURES = ROOT / "docs" / "figures"
 README = ROOT / "README.md"
 BEGIN = "<!-- figures: written by ./scripts/figures.sh render from docs/figures/*.json; edit those, not this table -->"
 END = "<!-- /figures -->"
+SPAN = re.compile(r"<!--fig ([\w-]+) ([\w.-]+) ([\w+]+)-->(.*?)<!--/fig-->")
+
+
+def pages() -> list[Path]:
+    """The user pages that may quote figures (the changelog and research notes keep theirs as dated)."""
+    return [README, *sorted((ROOT / "docs").glob("*.md"))]
 
 
 def load(name: str) -> dict:
@@ -120,19 +135,50 @@ def table() -> str:
     return "\n".join(lines)
 
 
-def render(readme: Path, check: bool) -> int:
-    text = readme.read_text()
+def quoted(name: str, path: str, form: str) -> str:
+    """A span's text: the value at `path` in docs/figures/NAME.json, written as `form` says."""
+    value = load(name)
+    try:
+        for part in path.split("."):
+            value = value[int(part)] if isinstance(value, list) else value[part]
+    except (KeyError, IndexError, ValueError, TypeError):
+        raise SystemExit(f"docs/figures/{name}.json has no `{path}`")
+    m = re.fullmatch(r"(neg)?(ci)?(\+)?(\d)", form)
+    if m is None:
+        raise SystemExit(f"figure span {name} {path}: format {form!r} is not 2, +2, ci2 or ci+2 (neg before it flips the sign)")
+    signed, digits = bool(m[3]), int(m[4])
+    if m[2]:
+        return fmt(interval(value, flip=bool(m[1])), signed=signed, digits=digits)
+    return f"{-value if m[1] else value:{'+' if signed else ''}.{digits}f}"
+
+
+def with_spans(text: str) -> str:
+    return SPAN.sub(lambda m: f"<!--fig {m[1]} {m[2]} {m[3]}-->{quoted(m[1], m[2], m[3])}<!--/fig-->", text)
+
+
+def with_table(text: str, name: str) -> str:
     if BEGIN not in text or END not in text:
-        raise SystemExit(f"README.md: the figures' markers are missing ({BEGIN!r} ... {END!r})")
+        raise SystemExit(f"{name}: the figures' markers are missing ({BEGIN!r} ... {END!r})")
     head, rest = text.split(BEGIN, 1)
     _, tail = rest.split(END, 1)
-    new = f"{head}{BEGIN}\n{table()}\n{END}{tail}"
-    if check:
+    return f"{head}{BEGIN}\n{table()}\n{END}{tail}"
+
+
+def render(readme: Path, check: bool) -> int:
+    """The README's table and every page's spans from the saved runs; with `check`, only
+    says which pages differ."""
+    stale = []
+    for page in dict.fromkeys([readme, *pages()]):
+        text = page.read_text()
+        new = with_spans(with_table(text, page.name) if page == readme else text)
         if new != text:
-            print(f"{readme.name}'s figures differ from docs/figures/*.json: run ./scripts/figures.sh render", file=sys.stderr)
-            return 1
-        return 0
-    readme.write_text(new)
+            stale.append(page)
+            if not check:
+                page.write_text(new)
+    if check and stale:
+        names = ", ".join(str(p.relative_to(ROOT)) if p.is_relative_to(ROOT) else str(p) for p in stale)
+        print(f"figures on {names} differ from docs/figures/*.json: run ./scripts/figures.sh render", file=sys.stderr)
+        return 1
     return 0
 
 
@@ -144,8 +190,8 @@ def main() -> int:
         s.add_argument("name")
         s.add_argument("source", type=Path)
         s.add_argument("--command", required=True, help="the command that reproduces it, as a user runs it")
-    r = sub.add_parser("render", help="README.md's table from docs/figures/*.json")
-    r.add_argument("--check", action="store_true", help="fail, changing nothing, when README.md differs")
+    r = sub.add_parser("render", help="README.md's table and the pages' figure spans from docs/figures/*.json")
+    r.add_argument("--check", action="store_true", help="fail, changing nothing, when a page differs")
     r.add_argument("--readme", type=Path, default=README, help="the page to render into (default: README.md)")
     a = ap.parse_args()
     if a.what == "render":

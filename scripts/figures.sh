@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # The figures the README quotes, each from one saved run: every eval and benchmark below
 # writes its summary into docs/figures/NAME.json with the command that made it, and
-# `render` writes the README's table from those files (tests/test_figures.py fails when
-# the README differs from them). Evals resume: rows already done with the same settings
+# `render` writes the README's table and the pages' figure spans from those files
+# (tests/test_figures.py fails when a page differs from them). Evals resume: rows already done with the same settings
 # are reused (runs/figures/).
 #   ./scripts/figures.sh voxel        # the voxel test suite (sim loopnav --per-cell 6 --seed 6, 48 walks):
 #                                     # the paper's pair and the served model
@@ -13,7 +13,7 @@
 #                                     # beside the served one on the voxel test suite (doom: runs/doom-h1, Doom's)
 #   ./scripts/figures.sh speed        # the main job's step on one core (taskset) and memory selection
 #   ./scripts/figures.sh cards        # the served voxel and Doom models' MODEL.md from their test suites' runs
-#   ./scripts/figures.sh render       # README.md's table from docs/figures/*.json
+#   ./scripts/figures.sh render       # README.md's table and the pages' figure spans from docs/figures/*.json
 # THREADS (1) sets the evals' intra-op threads.
 set -euo pipefail
 cd "$(dirname "$0")/.."

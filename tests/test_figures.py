@@ -1,11 +1,13 @@
-"""The README's figures are its saved runs': `scripts/figures.py render --check` rebuilds
-the table from docs/figures/*.json and fails when the README differs; every saved figure
-names the command that made it."""
+"""The pages' figures are their saved runs': `scripts/figures.py render --check` rebuilds
+the README's table and every page's figure spans from docs/figures/*.json and fails when a
+page differs; every saved figure names the command that made it."""
 
 import json
 import subprocess
 import sys
 from pathlib import Path
+
+import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
 FIGURES = ROOT / "docs" / "figures"
@@ -37,3 +39,24 @@ def test_an_edited_figure_is_caught(tmp_path):
     copy = tmp_path / "README.md"
     copy.write_text(readme[:i] + str((int(readme[i]) + 1) % 10) + readme[i + 1:])
     assert render("--check", "--readme", str(copy)).returncode != 0
+
+
+def test_a_span_is_rewritten_from_its_source_and_a_wrong_one_is_named():
+    sys.path.insert(0, str(ROOT / "scripts"))
+    sys.path.insert(0, str(ROOT / "train"))
+    import figures
+
+    served = json.loads((FIGURES / "voxel-test.json").read_text())["rows"]["served_covisible"]["psnr"]
+    page = "at <!--fig voxel-test rows.served_covisible.psnr ci2-->99.99 [1.00, 2.00]<!--/fig--> dB"
+    want = f"{served['mean']:.2f} [{served['lo']:.2f}, {served['hi']:.2f}]"
+    assert figures.with_spans(page) == page.replace("99.99 [1.00, 2.00]", want)
+    for wrong in ("<!--fig voxel-test rows.nobody.psnr 2-->1<!--/fig-->", "<!--fig nowhere rows 2-->1<!--/fig-->"):
+        with pytest.raises(SystemExit):
+            figures.with_spans(wrong)
+
+
+def test_the_pages_quote_their_figures_as_spans():
+    """The served models' headline figures on the user pages come from the saved runs."""
+    quoted = {page.name: page.read_text().count("<!--fig ") for page in (ROOT / "docs").glob("*.md")}
+    for page in ("api.md", "benchmarks.md", "model.md", "doom.md", "miniworld.md", "geometry.md"):
+        assert quoted.get(page, 0) > 0, f"docs/{page} quotes no figure span"
