@@ -15,7 +15,11 @@ stop within `--reach` blocks and `--turn` degrees of the goal's.
     python clients/python/examples/plan_to_goal.py --url http://127.0.0.1:8081 --out runs/plan/baseline.json
     python clients/python/examples/plan_to_goal.py --compare runs/plan/served.json runs/plan/random.json
 
-Needs the client and the project's metrics (`pip install --no-deps -e train`: numpy only).
+    ./scripts/serve.sh --model fixtures/doom/geometry_fused --addr 127.0.0.1:8090 &     # Doom
+    python clients/python/examples/plan_to_goal.py --world doom --url http://127.0.0.1:8090 --out runs/plan/doom.json
+
+Needs the client and the project's metrics (`pip install --no-deps -e train`: numpy only);
+`--world doom` also the Doom tool's requirements (doom/requirements.txt: vizdoom, opencv).
 
 Episodes (world seed `--first-world + e`): the agent looks round where it
 starts (12 turns of 30°, observed), then walks out `--out-steps` steps with
