@@ -581,11 +581,15 @@ def make(data: Path, out: Path, source: str | None, hours: float | None, device:
             sys.stdout, sys.stderr = sys.__stdout__, sys.__stderr__
 
 
+def spent_minutes(run: Run) -> float:
+    """Every stage's minutes so far, over every sitting."""
+    return sum(v["minutes"] for v in run.lineage["stages"].values())
+
+
 def print_budget(run: Run) -> None:
     """How the budget divides, before any stage runs: a large dataset's fixed work is seen
     before it has taken the training's minutes."""
-    total, ahead = run.settings["hours"] * 60, run.work_ahead()
-    spent = sum(v["minutes"] for v in run.lineage["stages"].values())
+    total, ahead, spent = run.settings["hours"] * 60, run.work_ahead(), spent_minutes(run)
     pool = run.training_pool() if budget.open_training(run.lineage["stages"]) else 0.0
     if not any(budget.pending(run.lineage["stages"], name) for name in run.lineage["stages"]):
         print(f"budget {total:.0f} min: {spent:.0f} spent, every stage done", flush=True)
@@ -612,7 +616,6 @@ def drive(run: Run, facts: dict, notes: list[str]) -> None:
     for name, _, _ in plan:
         run.stage(name)  # the lineage lists the stages in the order they run
     print_budget(run)
-    began = time.time()
     for i, (name, what, work) in enumerate(plan, 1):
         record = run.stage(name)
         if record["status"] in ("done", "skipped"):
@@ -621,7 +624,9 @@ def drive(run: Run, facts: dict, notes: list[str]) -> None:
         minutes = run.training_minutes(name) if name in budget.TRAINING_STAGES else None
         left = run.training_pool() if budget.open_training(run.lineage["stages"]) else 0.0
         print(f"[{i}/{len(plan)}] {name}: {what}" + (f" (budget {minutes:.0f} min)" if minutes is not None else "")
-              + f"; training left at most {left:.0f} min, {(time.time() - began) / 60:.0f} min so far", flush=True)
+              + f"; training left at most {left:.0f} min; {spent_minutes(run):.0f} of the budget's "
+              f"{run.settings['hours'] * 60:.0f} min spent, about {max(0.0, run.settings['hours'] * 60 - spent_minutes(run)):.0f} to go",
+              flush=True)
         t0 = time.time()
         try:
             result = work()
