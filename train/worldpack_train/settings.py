@@ -36,7 +36,7 @@ COSTS = {
     "fixed_minutes": 6.0,         # split and plans, the starting weights, the exports, parity, card
     "encode_ms_per_frame": 12.0,  # the latent cache: every training frame through the encoder
     "head_data_ms_per_frame": 10.0,  # `worldpack fusion-data` over the head's walks
-    "eval_ms_per_frame": 90.0,    # `worldpack eval`: five rows rolled out over the held-out walks
+    "eval_ms_per_frame": 110.0,   # `worldpack eval`: five rows rolled out over the held-out walks
 }
 
 
