@@ -50,7 +50,9 @@ def fmt(i: dict | None, signed: bool = False, digits: int = 2) -> str:
     if i is None:
         return "–"
     f = f"{{:{'+' if signed else ''}.{digits}f}}"
-    return f"{f.format(i['mean'])} [{f.format(i['lo'])}, {f.format(i['hi'])}]"
+    # Rounded first (+ 0.0 drops a negative zero), so that -0.001 reads +0.00, not -0.00.
+    g = lambda x: f.format(round(x, digits) + 0.0)
+    return f"{g(i['mean'])} [{g(i['lo'])}, {g(i['hi'])}]"
 
 
 def table(rows: dict) -> list[str]:
