@@ -46,7 +46,6 @@ from .stages.recover import recover
 TRAJECTORY_FILES = ("meta.json", "rgb.npy", "poses.npy", "actions.npy", "phase.npy", "depth.npy", "pose5.npy")
 
 
-
 class StageFailed(Exception):
     pass
 
