@@ -71,7 +71,7 @@ pub enum Last {
 /// closer) and the mean squared difference of the model's latents (lower is closer).
 #[derive(Clone, Copy, Debug)]
 pub struct GoalScore {
-    /// None for a frame not decoded.
+    /// None for a frame not decoded, or when the picture is not scored.
     pub psnr_db: Option<f64>,
     pub latent_mse: f64,
 }
@@ -126,12 +126,13 @@ impl Engine {
     }
 }
 
-/// How close `frame` is to the goal (its RGB at the model's size and its latent).
-pub fn goal_score(frame: &Imagined, goal_rgb: &[u8], goal_latent: &[f32]) -> GoalScore {
+/// How close `frame` is to the goal: its latent, and its picture when `goal_rgb` (at the
+/// model's size) is given and the frame was decoded.
+pub fn goal_score(frame: &Imagined, goal_rgb: Option<&[u8]>, goal_latent: &[f32]) -> GoalScore {
     let n = goal_latent.len().min(frame.latent.len()).max(1);
     let latent_mse = frame.latent.iter().zip(goal_latent).map(|(a, b)| f64::from(a - b).powi(2)).sum::<f64>() / n as f64;
-    // A frame not decoded (`Last::Latent`) has no picture to score; the route checks the goal's size.
-    let psnr_db = (!frame.rgb.is_empty() && frame.rgb.len() == goal_rgb.len()).then(|| eval::metrics::psnr(&frame.rgb, goal_rgb));
+    // A frame not decoded (`Last::Latent`) has no picture; the route checks the goal's size.
+    let psnr_db = goal_rgb.filter(|g| !frame.rgb.is_empty() && frame.rgb.len() == g.len()).map(|g| eval::metrics::psnr(&frame.rgb, g));
     GoalScore { psnr_db, latent_mse }
 }
 

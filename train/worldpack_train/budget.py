@@ -37,11 +37,15 @@ def work_ahead(settings: dict, stages: dict, train: list[dict], held: list[dict]
     return ahead
 
 
+def spent(stages: dict) -> float:
+    """Every stage's minutes so far, over every sitting."""
+    return sum(v.get("minutes", 0.0) for v in stages.values())
+
+
 def training_pool(settings: dict, stages: dict, ahead: dict[str, float]) -> float:
     """Minutes the open training stages may still share: the budget, less every stage's
     minutes so far and the work ahead."""
-    spent = sum(v.get("minutes", 0.0) for v in stages.values())
-    return max(0.0, settings["hours"] * 60 - spent - sum(ahead.values()))
+    return max(0.0, settings["hours"] * 60 - spent(stages) - sum(ahead.values()))
 
 
 def training_minutes(settings: dict, stages: dict, ahead: dict[str, float], name: str) -> float:

@@ -580,23 +580,20 @@ def make(data: Path, out: Path, source: str | None, hours: float | None, device:
             sys.stdout, sys.stderr = sys.__stdout__, sys.__stderr__
 
 
-def spent_minutes(run: Run) -> float:
-    """Every stage's minutes so far, over every sitting."""
-    return sum(v["minutes"] for v in run.lineage["stages"].values())
-
-
 def print_budget(run: Run) -> None:
     """How the budget divides, before any stage runs: a large dataset's fixed work is seen
     before it has taken the training's minutes."""
-    total, ahead, spent = run.settings["hours"] * 60, run.work_ahead(), spent_minutes(run)
-    pool = run.training_pool() if budget.open_training(run.lineage["stages"]) else 0.0
-    if not any(budget.pending(run.lineage["stages"], name) for name in run.lineage["stages"]):
+    stages, total, ahead = run.lineage["stages"], run.settings["hours"] * 60, run.work_ahead()
+    spent = budget.spent(stages)
+    if not any(budget.pending(stages, name) for name in stages):
         print(f"budget {total:.0f} min: {spent:.0f} spent, every stage done", flush=True)
         return
+    training = bool(budget.open_training(stages))
+    pool = budget.training_pool(run.settings, stages, ahead) if training else 0.0
     parts = ", ".join(f"{k} {v:.0f}" for k, v in ahead.items() if v >= 0.5)
     print(f"budget {total:.0f} min: {spent:.0f} spent, about {sum(ahead.values()):.0f} set aside for the work that is "
           f"not training ({parts}), {pool:.0f} for training", flush=True)
-    if budget.open_training(run.lineage["stages"]) and pool < 0.3 * total:
+    if training and pool < 0.3 * total:
         print("note: the work sized by the dataset leaves training under a third of the budget; give more --hours, "
               "or fewer walks to it (--set heads.walks=N, --set heldout.at_most=N)", flush=True)
 
@@ -620,11 +617,12 @@ def drive(run: Run, facts: dict, notes: list[str]) -> None:
         if record["status"] in ("done", "skipped"):
             print(f"[{i}/{len(plan)}] {name}: {record['status']} ({record['minutes']:.1f} min), kept", flush=True)
             continue
+        total, spent = run.settings["hours"] * 60, budget.spent(run.lineage["stages"])
         minutes = run.training_minutes(name) if name in budget.TRAINING_STAGES else None
         left = run.training_pool() if budget.open_training(run.lineage["stages"]) else 0.0
         print(f"[{i}/{len(plan)}] {name}: {what}" + (f" (budget {minutes:.0f} min)" if minutes is not None else "")
-              + f"; training left at most {left:.0f} min; {spent_minutes(run):.0f} of the budget's "
-              f"{run.settings['hours'] * 60:.0f} min spent, about {max(0.0, run.settings['hours'] * 60 - spent_minutes(run)):.0f} to go",
+              + f"; training left at most {left:.0f} min; {spent:.0f} of the budget's {total:.0f} min spent, "
+              f"about {max(0.0, total - spent):.0f} to go",
               flush=True)
         t0 = time.time()
         try:

@@ -254,7 +254,10 @@ pub async fn imagine(State(st): St, caller: Caller, id: Result<Path<u64>, PathRe
                         ImaginedFrame { step: h, index: s.len() + h as u64, time: f.time, image_png, latent }
                     })
                     .collect(),
-                goal: goal.as_ref().and_then(|(rgb, lat)| rollout.last().map(|f| goal_score(f, rgb, lat))).map(|g| GoalAnswer { psnr_db: g.psnr_db.filter(|_| scoring == GoalScoring::Both), latent_mse: g.latent_mse }),
+                goal: goal
+                    .as_ref()
+                    .and_then(|(rgb, lat)| rollout.last().map(|f| goal_score(f, (scoring == GoalScoring::Both).then_some(rgb.as_slice()), lat)))
+                    .map(|g| GoalAnswer { psnr_db: g.psnr_db, latent_mse: g.latent_mse }),
             })
             .collect();
         Ok(ImagineAnswer {
