@@ -115,6 +115,31 @@ fn candidates_in_one_call_get_the_frames_they_would_get_alone() {
     assert_ne!(together["candidates"][1]["frames"][0]["image_png"], together["candidates"][0]["frames"][0]["image_png"], "other actions, another future");
 }
 
+/// Candidates that begin alike are one future until they part: its frames are made once,
+/// and each candidate still gets, frame for frame, what it gets imagined alone.
+#[test]
+fn candidates_with_the_same_first_actions_share_those_frames() {
+    let s = Server::start(&temp_store("imagine-prefix"), &[]);
+    let id = session(&s, 8);
+    let (go, turn) = (json!({ "forward": true }), json!({ "yaw_deg": 15 }));
+    let seqs = [vec![go.clone(), go.clone(), turn.clone()], vec![go.clone(), go.clone(), go.clone()], vec![go.clone(), turn.clone(), go.clone()], vec![turn.clone(), go.clone(), go.clone()]];
+    let body = |seqs: &[Vec<Value>]| json!({ "candidates": seqs.iter().map(|a| json!({ "actions": a })).collect::<Vec<_>>(), "seed": 5, "frames": "all" });
+    let together = imagine(&s, id, body(&seqs));
+    // Step 0: go, turn; step 1: go·go, go·turn, turn·go; step 2: all four apart.
+    assert_eq!(together["frames_made"].as_u64(), Some(2 + 3 + 4), "{}", together["frames_made"]);
+    for (k, seq) in seqs.iter().enumerate() {
+        let alone = imagine(&s, id, body(std::slice::from_ref(seq)));
+        assert_eq!(alone["frames_made"].as_u64(), Some(3));
+        for h in 0..3 {
+            let (a, b) = (rgb(&alone["candidates"][0]["frames"][h]["image_png"]), rgb(&together["candidates"][k]["frames"][h]["image_png"]));
+            let worst = a.iter().zip(&b).map(|(x, y)| x.abs_diff(*y)).max().unwrap();
+            assert!(worst <= 2, "candidate {k}, step {h}: differs from alone by {worst} grey levels");
+        }
+    }
+    let c = &together["candidates"];
+    assert_eq!(c[0]["frames"][1]["image_png"], c[1]["frames"][1]["image_png"], "one prefix, one frame");
+    assert_ne!(c[0]["frames"][2]["image_png"], c[1]["frames"][2]["image_png"], "apart at step 2");
+}
 /// Returning to the view of frame 0 scores closer to a goal of frame 0 than looking away.
 #[test]
 fn a_goal_image_scores_the_candidates() {

@@ -248,7 +248,10 @@ def test_imagine_rolls_candidates_out_and_changes_nothing(server):
     goal = c.frame_image(session, 0)
     plans = [[{"forward": True}, {"yaw_deg": 20}], [{"yaw_deg": -40}, {"yaw_deg": -40}], [{}, {}]]
     out = c.imagine(session, plans, seed=7, frames="all", goal=goal)
-    assert out.model_calls == 2 and len(out.rollouts) == 3
+    assert out.model_calls == 2 and len(out.rollouts) == 3 and out.frames_made == 6, "three candidates apart from the first step"
+    twice = c.imagine(session, [plans[0], plans[0][:1] + [{"yaw_deg": -20}]], seed=7, frames="all")
+    assert twice.frames_made == 3, "one first step for two candidates that begin alike"
+    np.testing.assert_array_equal(twice.rollouts[1].frames[0], twice.rollouts[0].frames[0])
     for r in out.rollouts:
         assert len(r.poses) == 2 and r.poses[0].shape == (4, 4)
         assert sorted(r.frames) == [0, 1] and r.frames[1].shape == (64, 64, 3) and r.frames[1].dtype == np.uint8

@@ -2,7 +2,9 @@
 //! present, none written to the session or the store. Each candidate reads
 //! the session's history with its own earlier imagined frames on top, as a
 //! fork stepped H times would (the same `engine::prepare` and model call), and
-//! step h of every candidate runs in one model call.
+//! step h of every candidate runs in one model call. Candidates that agree up
+//! to a step (a planner's often share their first actions) are one future so
+//! far: its frames are made once and shared.
 
 use std::time::Instant;
 
@@ -40,6 +42,7 @@ pub struct Candidate {
 }
 
 /// An imagined frame: where it was seen from, its latent and its decoded picture.
+#[derive(Clone)]
 pub struct Imagined {
     pub pose: Pose,
     pub time: u64,
@@ -52,6 +55,8 @@ pub struct Imagination {
     pub rollouts: Vec<Vec<Imagined>>,
     /// Model calls made: one per step of the horizon.
     pub calls: usize,
+    /// Frames the model made: K × H less those shared by candidates with the same prefix.
+    pub made: usize,
     /// Milliseconds, summed over the horizon: choosing poses and plans, the warp, sampling, decoding.
     pub select_ms: f64,
     pub warp_ms: f64,
@@ -89,16 +94,20 @@ impl Engine {
         let base = s.timeline();
         let mut own: Vec<Segment> = candidates.iter().map(|_| Segment::starting_at(s.len())).collect();
         let mut previous: Vec<Option<ContextPlan>> = vec![s.last_plan.clone(); candidates.len()];
-        let mut out = Imagination { rollouts: candidates.iter().map(|_| Vec::with_capacity(horizon)).collect(), calls: 0, select_ms: 0.0, warp_ms: 0.0, sample_ms: 0.0, decode_ms: 0.0 };
+        let mut out = Imagination { rollouts: candidates.iter().map(|_| Vec::with_capacity(horizon)).collect(), calls: 0, made: 0, select_ms: 0.0, warp_ms: 0.0, sample_ms: 0.0, decode_ms: 0.0 };
+        let mut same = vec![0; candidates.len()];
         for h in 0..horizon {
             let t0 = Instant::now();
-            let nexts = candidates
+            same = same_prefix(candidates, &same, h);
+            // Only the first candidate of each prefix is imagined; the seed is per step, not per
+            // candidate, so the others would have been given the same inputs and made the same frame.
+            let firsts: Vec<usize> = (0..candidates.len()).filter(|&k| same[k] == k).collect();
+            let nexts = firsts
                 .iter()
-                .zip(&own)
-                .zip(&previous)
-                .map(|((c, mine), prev)| {
+                .map(|&k| {
+                    let c = &candidates[k];
                     let pose = c.poses.as_ref().map(|p| p[h]);
-                    prepare(m, &base.with(mine), &c.actions[h], pose, seed.map(|s| s + h as u64), prev.as_ref())
+                    prepare(m, &base.with(&own[k]), &c.actions[h], pose, seed.map(|s| s + h as u64), previous[k].as_ref())
                 })
                 .collect::<Result<Vec<Next>, _>>()?;
             out.select_ms += ms(t0);
@@ -109,21 +118,38 @@ impl Engine {
                 batch::call(m, &s.policy.packing, sampler, &items)?
             };
             out.calls += 1;
+            out.made += firsts.len();
             if let Some(o) = outcomes.first() {
                 out.warp_ms += o.warp_ms;
                 out.sample_ms += o.sample_ms;
                 out.decode_ms += o.decode_ms;
             }
-            for (k, (next, outcome)) in nexts.into_iter().zip(outcomes).enumerate() {
-                let Next { pose, player, time, plan, .. } = next;
-                let frame = outcome.frame;
-                own[k].push(s.frustum(pose)?, Frame { pose, time, latent: frame.latent.clone(), player, generated: true })?;
-                previous[k] = Some(plan);
-                out.rollouts[k].push(Imagined { pose, time, latent: frame.latent, rgb: frame.rgb });
+            let made: Vec<(Next, Imagined)> = nexts
+                .into_iter()
+                .zip(outcomes)
+                .map(|(next, outcome)| {
+                    let f = outcome.frame;
+                    let imagined = Imagined { pose: next.pose, time: next.time, latent: f.latent, rgb: f.rgb };
+                    (next, imagined)
+                })
+                .collect();
+            for k in 0..candidates.len() {
+                let (next, imagined) = &made[firsts.partition_point(|&j| j < same[k])];
+                let frustum = s.frustum(next.pose)?;
+                own[k].push(frustum, Frame { pose: next.pose, time: next.time, latent: imagined.latent.clone(), player: next.player, generated: true })?;
+                previous[k] = Some(next.plan.clone());
+                out.rollouts[k].push(imagined.clone());
             }
         }
         Ok(out)
     }
+}
+
+/// For step h, each candidate's first candidate with the same actions and poses
+/// through h, given the same through h − 1 (`before`).
+fn same_prefix(candidates: &[Candidate], before: &[usize], h: usize) -> Vec<usize> {
+    let step = |k: usize| (&candidates[k].actions[h], candidates[k].poses.as_ref().map(|p| &p[h]));
+    (0..candidates.len()).map(|k| (0..=k).find(|&j| before[j] == before[k] && step(j) == step(k)).unwrap_or(k)).collect()
 }
 
 /// How close `frame` is to the goal: its latent, and its picture when `goal_rgb` (at the

@@ -7,9 +7,11 @@
 //!   client without imagine does: a durable commit, PNG encoding and, in a
 //!   synthetic session, the world's true frame scored, every step).
 //!
-//! batched against alone is what batching buys; alone against stepped what
-//! skipping the step's other work buys (split by the step's own timings).
-//! Every frame is decoded in all three (the model decodes in `predict`).
+//! batched against alone is what batching buys, with what sharing buys when
+//! candidates begin alike (`--drawn`: frames made is then below K × H);
+//! alone against stepped what skipping the step's other work buys (split by
+//! the step's own timings). Every frame is decoded in all three (the model
+//! decodes in `predict`) except the last step of "last latent".
 
 use std::path::Path;
 use std::time::Instant;
@@ -33,12 +35,16 @@ pub struct Options {
     pub explore: usize,
     pub horizon: usize,
     pub rounds: usize,
+    /// Candidates drawn as the example planner draws them (some share first actions).
+    pub drawn: bool,
 }
 
 #[derive(Serialize)]
 pub struct Row {
     pub candidates: usize,
     pub horizon: usize,
+    /// Frames the batched imagine made (K × H less those candidates with the same prefix shared).
+    pub made: usize,
     /// Imagined frames per second, median over the rounds.
     pub batched_fps: f64,
     /// Batched, with the last step left as a latent (scored in latent space: not decoded).
@@ -71,9 +77,33 @@ fn candidates(k: usize, horizon: usize) -> Vec<Candidate> {
         .collect()
 }
 
+/// K candidates as the example planner's first round draws them: each step one of its six
+/// actions (a key or a turn of 15° either way), uniformly, from a fixed seed.
+fn drawn(k: usize, horizon: usize, seed: u64) -> Vec<Candidate> {
+    let choices = [
+        Action { forward: true, ..Action::default() },
+        Action { back: true, ..Action::default() },
+        Action { left: true, ..Action::default() },
+        Action { right: true, ..Action::default() },
+        Action { yaw_deg: 15.0, ..Action::default() },
+        Action { yaw_deg: -15.0, ..Action::default() },
+    ];
+    // SplitMix64: a fixed, dependency-free draw.
+    let mut state = seed;
+    let mut next = || {
+        state = state.wrapping_add(0x9e37_79b9_7f4a_7c15);
+        let mut z = state;
+        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        (z ^ (z >> 31)) % choices.len() as u64
+    };
+    (0..k).map(|_| Candidate { actions: (0..horizon).map(|_| choices[next() as usize]).collect(), poses: None }).collect()
+}
+
 fn row(engine: &Engine, s: &mut api::session::Session, sampler: &Sampler, k: usize, o: &Options) -> Result<Row, EngineError> {
-    let cands = candidates(k, o.horizon);
+    let cands = if o.drawn { drawn(k, o.horizon, 7) } else { candidates(k, o.horizon) };
     let frames = (k * o.horizon) as f64;
+    let mut made = 0;
     let (mut batched, mut latent_last, mut alone, mut stepped) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
     let (mut batched_ms, mut stepped_ms) = ([0.0; 4], [0.0; 6]);
     for round in 0..o.rounds {
@@ -81,6 +111,7 @@ fn row(engine: &Engine, s: &mut api::session::Session, sampler: &Sampler, k: usi
         let t = Instant::now();
         let all = engine.imagine(s, &cands, sampler, seed, Last::Frame)?;
         batched.push(frames / t.elapsed().as_secs_f64());
+        made = all.made;
         for (acc, v) in batched_ms.iter_mut().zip([all.select_ms, all.warp_ms, all.sample_ms, all.decode_ms]) {
             *acc += v / frames / o.rounds as f64;
         }
@@ -111,7 +142,7 @@ fn row(engine: &Engine, s: &mut api::session::Session, sampler: &Sampler, k: usi
         }
         stepped.push(frames / took);
     }
-    Ok(Row { candidates: k, horizon: o.horizon, batched_fps: median(batched), latent_last_fps: median(latent_last), alone_fps: median(alone), stepped_fps: median(stepped), batched_ms, stepped_ms })
+    Ok(Row { candidates: k, horizon: o.horizon, made, batched_fps: median(batched), latent_last_fps: median(latent_last), alone_fps: median(alone), stepped_fps: median(stepped), batched_ms, stepped_ms })
 }
 
 pub fn run(model_dir: &Path, runtime: RuntimeOptions, o: &Options, ks: &[usize], json_out: bool) -> Result<()> {
@@ -135,7 +166,7 @@ pub fn run(model_dir: &Path, runtime: RuntimeOptions, o: &Options, ks: &[usize],
     let rows = rows?;
     if json_out {
         let report = json!({ "model": model_dir, "steps": sampler.len(), "method": sampler.method.name(), "covisible": o.covisible,
-                             "threads": runtime.threads, "explore": o.explore, "rounds": o.rounds, "rows": rows });
+                             "threads": runtime.threads, "explore": o.explore, "rounds": o.rounds, "drawn": o.drawn, "rows": rows });
         println!("{}", serde_json::to_string_pretty(&report)?);
         return Ok(());
     }
@@ -143,10 +174,10 @@ pub fn run(model_dir: &Path, runtime: RuntimeOptions, o: &Options, ks: &[usize],
         "model {}, {} {} steps, covisible {}, {} intra-op thread(s); {} observed steps, then K candidates of {} steps, median of {} rounds\n",
         model_dir.display(), sampler.len(), sampler.method.name(), o.covisible, runtime.threads, o.explore, o.horizon, o.rounds
     );
-    println!("{:>3} {:>12} {:>12} {:>12} {:>10} {:>10} {:>10} {:>14} {:>10}", "K", "batched f/s", "alone f/s", "stepped f/s", "batching", "skipping", "in all",
+    println!("{:>3} {:>6} {:>12} {:>12} {:>12} {:>10} {:>10} {:>10} {:>14} {:>10}", "K", "made", "batched f/s", "alone f/s", "stepped f/s", "batching", "skipping", "in all",
         "last latent f/s", "in all");
     for r in &rows {
-        println!("{:>3} {:>12.2} {:>12.2} {:>12.2} {:>9.2}× {:>9.2}× {:>9.2}× {:>14.2} {:>9.2}×", r.candidates, r.batched_fps, r.alone_fps, r.stepped_fps,
+        println!("{:>3} {:>6} {:>12.2} {:>12.2} {:>12.2} {:>9.2}× {:>9.2}× {:>9.2}× {:>14.2} {:>9.2}×", r.candidates, r.made, r.batched_fps, r.alone_fps, r.stepped_fps,
             r.batched_fps / r.alone_fps, r.alone_fps / r.stepped_fps, r.batched_fps / r.stepped_fps, r.latent_last_fps, r.latent_last_fps / r.stepped_fps);
     }
     println!("\nms per frame    batched: select / warp / sample / decode        stepped: select / warp / sample / decode+png / store / rest");
@@ -155,7 +186,8 @@ pub fn run(model_dir: &Path, runtime: RuntimeOptions, o: &Options, ks: &[usize],
         let st = r.stepped_ms;
         println!("K = {:<3} {:>14.2} / {:.2} / {:.2} / {:.2} {:>22.2} / {:.2} / {:.2} / {:.2} / {:.2} / {:.2}", r.candidates, b[0], b[1], b[2], b[3], st[0], st[1], st[2], st[3], st[4], st[5]);
     }
-    println!("\n(batching: batched over alone; skipping: alone over stepped, the step's commit, PNG and truth scoring; rest: the true frame and the fork;");
+    println!("\n(made: frames the batched imagine made of K × H, the rest shared by candidates that begin alike;");
+    println!(" batching: batched over alone, sharing included; skipping: alone over stepped, the step's commit, PNG and truth scoring; rest: the true frame and the fork;");
     println!(" last latent: batched, the last step not decoded, as when candidates are scored in latent space)");
     Ok(())
 }

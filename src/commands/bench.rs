@@ -170,6 +170,11 @@ pub enum Bench {
         explore: u64,
         #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u64).range(1..=100))]
         rounds: u64,
+        /// Candidates drawn as the example planner's first round draws them (each step one of its
+        /// six actions, uniformly, seeded), so some share their first actions; without it each
+        /// candidate turns by its own angle and none shares a frame.
+        #[arg(long)]
+        drawn: bool,
         #[arg(long, default_value = "cpu", value_parser = parse_provider)]
         provider: model::Provider,
         /// Intra-op threads per model call (pin the process to one core with `taskset -c 0` for a one-core figure).
@@ -264,10 +269,10 @@ impl Bench {
             }
             Bench::Store { frames, json } => benchmarks::store::run(*frames as usize, *json),
             Bench::Fork { frames, forks, json } => benchmarks::fork::run(*frames as usize, *forks as usize, *json),
-            Bench::Imagine { model, steps, method, covisible, candidates, horizon, explore, rounds, provider, threads, json } => {
+            Bench::Imagine { model, steps, method, covisible, candidates, horizon, explore, rounds, drawn, provider, threads, json } => {
                 let runtime = model::RuntimeOptions { provider: *provider, threads: *threads };
                 let o = benchmarks::imagine::Options { steps: *steps as usize, method: *method, covisible: *covisible, explore: *explore as usize,
-                    horizon: *horizon as usize, rounds: *rounds as usize };
+                    horizon: *horizon as usize, rounds: *rounds as usize, drawn: *drawn };
                 let ks: Vec<usize> = candidates.iter().map(|&k| k as usize).collect();
                 benchmarks::imagine::run(model, runtime, &o, &ks, *json)
             }

@@ -268,6 +268,7 @@ pub async fn imagine(State(st): St, caller: Caller, id: Result<Path<u64>, PathRe
             latent_shape: (format == FrameFormat::Latent).then_some(latent_shape),
             steps: sampler.len(),
             model_calls: imagined.calls,
+            frames_made: imagined.made,
             timings_ms: ImagineTimings {
                 select: imagined.select_ms,
                 warp: imagined.warp_ms,
@@ -300,6 +301,9 @@ pub struct ImagineAnswer {
     pub steps: usize,
     /// Model calls made: one per step, every candidate in it.
     pub model_calls: usize,
+    /// Frames the model made, at most K × H: candidates whose actions (and poses) agree up to a
+    /// step share the frames made so far, since the noise seed is per step, not per candidate.
+    pub frames_made: usize,
     /// Milliseconds.
     pub timings_ms: ImagineTimings,
 }

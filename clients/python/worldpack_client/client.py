@@ -143,6 +143,8 @@ class Imagined:
 
     rollouts: list[Rollout]
     model_calls: int
+    # Frames the model made: candidates that begin with the same actions share those frames.
+    frames_made: int
     timings_ms: dict
     raw: dict = field(repr=False)
 
@@ -293,7 +295,8 @@ class Client:
 
         rollouts = [Rollout(poses=[pose_matrix(p) for p in c["poses"]], frames={f["step"]: frame(f) for f in c["frames"]},
                             goal=c.get("goal"), raw=c) for c in r["candidates"]]
-        return Imagined(rollouts=rollouts, model_calls=r["model_calls"], timings_ms=r["timings_ms"], raw=r)
+        return Imagined(rollouts=rollouts, model_calls=r["model_calls"], frames_made=r["frames_made"],
+                        timings_ms=r["timings_ms"], raw=r)
 
     def select(self, session: int, pose: Pose | np.ndarray) -> dict:
         """The plan the session's policy would choose for `pose` (a dry run)."""
