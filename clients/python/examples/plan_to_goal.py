@@ -49,14 +49,18 @@ from worldpack_train.metrics import psnr
 
 # The planner's actions: one key or a turn of 15° per step.
 ACTIONS = [{"forward": True}, {"back": True}, {"left": True}, {"right": True}, {"yaw_deg": 15.0}, {"yaw_deg": -15.0}]
+# With `--stop stay` the planner may also imagine staying where it is; it stops when that is best.
+STAY: dict = {}
 
 
 # Per world: steps walked out, the view's PSNR against the goal at which the agent stops,
 # and how close (blocks or metres) a stop must be to count.
 # Doom's views change slowly with the pose, so a CEM round of 12 draws rarely holds the best
-# of the 36 two-step sequences: there the planner scores all of them.
-DEFAULTS = {"voxel": {"out_steps": 6, "stop_db": 22.0, "reach": 0.5, "search": "cem"},
-            "doom": {"out_steps": 6, "stop_db": 30.0, "reach": 0.5, "search": "all"}}
+# of the 36 two-step sequences, and a view can score 30 dB against the goal's a metre away
+# while one at the goal's place scores 20: there the planner scores every sequence and stops
+# when staying put is the best of them.
+DEFAULTS = {"voxel": {"out_steps": 6, "stop": "view", "stop_db": 22.0, "reach": 0.5, "search": "cem"},
+            "doom": {"out_steps": 6, "stop": "stay", "stop_db": 30.0, "reach": 0.5, "search": "all"}}
 
 
 def yaw_of(pose: dict) -> float:
@@ -69,11 +73,12 @@ class VoxelWorld:
     """The server's synthetic voxel world (episode e in world seed `--first-world + e`):
     acting is an observing step, and its renderer draws any pose, on a fork."""
 
-    actions = ACTIONS
     unit = "blocks"
 
     def __init__(self, c: Client, a):
         self.c, self.a = c, a
+        self.moves = len(ACTIONS)
+        self.actions = ACTIONS + ([STAY] if a.stop == "stay" else [])
 
     def start(self, e: int, seen: bool, rng: np.random.Generator):
         """A session that has looked round (when the goal was seen) and walked out; the goal's image and pose."""
@@ -103,7 +108,7 @@ class VoxelWorld:
         return r.image, r.raw["pose"]
 
     def imagine(self, s: int, seqs: np.ndarray, goal: np.ndarray):
-        return self.c.imagine(s, [[ACTIONS[i] for i in seq] for seq in seqs], seed=self.a.seed, frames="none",
+        return self.c.imagine(s, [[self.actions[i] for i in seq] for seq in seqs], seed=self.a.seed, frames="none",
                               goal=goal, goal_score=goal_scoring(self.a), steps=self.a.sampler_steps)
 
     def rendered(self, s: int, seqs: np.ndarray, goal: np.ndarray) -> np.ndarray:
@@ -112,7 +117,7 @@ class VoxelWorld:
         for seq in seqs:
             f = self.c.fork(s)
             for i in seq:
-                last = self.c.step(f, ACTIONS[i], observe=True)
+                last = self.c.step(f, self.actions[i], observe=True)
             self.c.delete_session(f)
             out.append(psnr(last.image, goal))
         return np.array(out)
@@ -142,11 +147,13 @@ class DoomWorld:
 
     # A step, a step steered 10° either way, a turn in place of 15° either way (positive turns
     # right), as the Doom suites walk; and a step back, as the voxel world's planner has.
-    actions = [{"forward": True}, {"forward": True, "yaw_deg": 10.0}, {"forward": True, "yaw_deg": -10.0},
-               {"yaw_deg": 15.0}, {"yaw_deg": -15.0}, {"back": True}]
+    MOVES = [{"forward": True}, {"forward": True, "yaw_deg": 10.0}, {"forward": True, "yaw_deg": -10.0},
+             {"yaw_deg": 15.0}, {"yaw_deg": -15.0}, {"back": True}]
     unit = "m"
 
     def __init__(self, c: Client, a):
+        self.moves = len(self.MOVES)
+        self.actions = self.MOVES + ([STAY] if a.stop == "stay" else [])
         # Imported here: only a Doom run needs the Doom tool (the checkout's doom/, with vizdoom).
         sys.path.insert(0, str(Path(__file__).resolve().parents[3] / "doom"))
         from worldpack_doom import engine, suite, walk
@@ -264,18 +271,20 @@ def goal_scoring(a) -> str:
     return "latent" if a.score == "latent" else "both"
 
 
-def every_sequence(world, s: int, goal: np.ndarray, a) -> tuple[int, float]:
-    """The first action of the best of all n^H sequences (they share prefixes, so the server
-    makes n + n² + ... frames, not H·n^H), and its score."""
+def every_sequence(world, s: int, goal: np.ndarray, a) -> tuple[np.ndarray, float]:
+    """The best of all n^H sequences (they share prefixes, so the server makes n + n² + ...
+    frames, not H·n^H), and its score."""
     n = len(world.actions)
     seqs = np.array(np.meshgrid(*[np.arange(n)] * a.horizon, indexing="ij")).reshape(a.horizon, -1).T
+    # The most staying first: a tie (a turn and its undoing against staying put) goes to staying.
+    seqs = seqs[np.argsort(-(seqs >= world.moves).sum(axis=1), kind="stable")]
     scores = score(world, s, goal, seqs, a)
     best = int(np.argmax(scores))
-    return int(seqs[best][0]), float(scores[best])
+    return seqs[best], float(scores[best])
 
 
-def cem(world, s: int, goal: np.ndarray, a, rng: np.random.Generator) -> tuple[int, float]:
-    """The first action of the best sequence the cross-entropy method finds (index into the world's actions), and its score."""
+def cem(world, s: int, goal: np.ndarray, a, rng: np.random.Generator) -> tuple[np.ndarray, float]:
+    """The best sequence the cross-entropy method finds (indices into the world's actions), and its score."""
     n = len(world.actions)
     probs = np.full((a.horizon, n), 1.0 / n)
     best, best_score = None, -np.inf
@@ -288,7 +297,7 @@ def cem(world, s: int, goal: np.ndarray, a, rng: np.random.Generator) -> tuple[i
         elites = seqs[order[: a.elites]]
         probs = np.stack([np.bincount(elites[:, h], minlength=n) + 0.5 for h in range(a.horizon)])
         probs /= probs.sum(axis=1, keepdims=True)
-    return int(best[0]), best_score
+    return best, best_score
 
 
 def score(world, s: int, goal: np.ndarray, seqs: np.ndarray, a) -> np.ndarray:
@@ -308,17 +317,21 @@ def run_episode(world, e: int, a) -> dict:
     s, goal, goal_pose, view, start_pose = world.start(e, seen, rng)
     pose, steps, decide_s, stopped = start_pose, 0, [], False
     while steps < a.max_steps:
-        if psnr(view, goal) >= a.stop_db:
+        if a.stop == "view" and psnr(view, goal) >= a.stop_db:
             stopped = True
             break
         t = time.perf_counter()
         if a.policy == "random":
-            choice = int(rng.integers(len(world.actions)))
-        elif a.search == "all":
-            choice, _ = every_sequence(world, s, goal, a)
+            choice = int(rng.integers(world.moves))
         else:
-            choice, _ = cem(world, s, goal, a, rng)
+            best, _ = every_sequence(world, s, goal, a) if a.search == "all" else cem(world, s, goal, a, rng)
+            # Staying first and moving after is the move now; staying throughout is the stop.
+            moving = [int(i) for i in best if i < world.moves]
+            choice = moving[0] if moving else None
         decide_s.append(time.perf_counter() - t)
+        if choice is None:
+            stopped = True
+            break
         view, pose = world.act(s, choice)
         steps += 1
     reach, turn = world.apart(pose, goal_pose)
@@ -377,6 +390,8 @@ def main():
     ap.add_argument("--elites", type=int, default=3)
     ap.add_argument("--score", choices=["psnr", "latent"], default="psnr", help="the imagined last frame against the goal")
     ap.add_argument("--sampler-steps", type=int, default=None)
+    ap.add_argument("--stop", choices=["view", "stay"], default=None,
+                    help="stop when the view is within --stop-db of the goal (voxel), or when the planner's best future is to stay put (Doom; random then never stops)")
     ap.add_argument("--stop-db", type=float, default=None,
                     help="stop when the view's PSNR against the goal reaches this (voxel 22, Doom 30: a Doom view a step from the goal's scores 24 to 34)")
     ap.add_argument("--reach", type=float, default=None,
