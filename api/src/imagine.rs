@@ -124,19 +124,18 @@ impl Engine {
                 out.sample_ms += o.sample_ms;
                 out.decode_ms += o.decode_ms;
             }
-            let made: Vec<(Next, Imagined)> = nexts
+            let made = nexts
                 .into_iter()
                 .zip(outcomes)
                 .map(|(next, outcome)| {
                     let f = outcome.frame;
                     let imagined = Imagined { pose: next.pose, time: next.time, latent: f.latent, rgb: f.rgb };
-                    (next, imagined)
+                    Ok((s.frustum(next.pose)?, next, imagined))
                 })
-                .collect();
+                .collect::<Result<Vec<_>, EngineError>>()?;
             for k in 0..candidates.len() {
-                let (next, imagined) = &made[firsts.partition_point(|&j| j < same[k])];
-                let frustum = s.frustum(next.pose)?;
-                own[k].push(frustum, Frame { pose: next.pose, time: next.time, latent: imagined.latent.clone(), player: next.player, generated: true })?;
+                let (frustum, next, imagined) = &made[firsts.partition_point(|&j| j < same[k])];
+                own[k].push(frustum.clone(), Frame { pose: next.pose, time: next.time, latent: imagined.latent.clone(), player: next.player, generated: true })?;
                 previous[k] = Some(next.plan.clone());
                 out.rollouts[k].push(imagined.clone());
             }

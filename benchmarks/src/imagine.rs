@@ -88,16 +88,10 @@ fn drawn(k: usize, horizon: usize, seed: u64) -> Vec<Candidate> {
         Action { yaw_deg: 15.0, ..Action::default() },
         Action { yaw_deg: -15.0, ..Action::default() },
     ];
-    // SplitMix64: a fixed, dependency-free draw.
-    let mut state = seed;
-    let mut next = || {
-        state = state.wrapping_add(0x9e37_79b9_7f4a_7c15);
-        let mut z = state;
-        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-        (z ^ (z >> 31)) % choices.len() as u64
-    };
-    (0..k).map(|_| Candidate { actions: (0..horizon).map(|_| choices[next() as usize]).collect(), poses: None }).collect()
+    let mut rng = memory::rng::SplitMix64::new(seed);
+    (0..k)
+        .map(|_| Candidate { actions: (0..horizon).map(|_| choices[(rng.next_u64() % choices.len() as u64) as usize]).collect(), poses: None })
+        .collect()
 }
 
 fn row(engine: &Engine, s: &mut api::session::Session, sampler: &Sampler, k: usize, o: &Options) -> Result<Row, EngineError> {
