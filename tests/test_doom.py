@@ -243,6 +243,31 @@ def test_the_planning_example_plans_in_doom_against_a_real_server(tmp_path):
         server.wait(timeout=30)
 
 
+
+def test_the_planner_imagines_its_candidates_at_its_own_eye_height(tmp_path):
+    """The Doom planner dead-reckons its candidates' poses; they must stand on the floor it
+    stands on. Episode 1 (MAP29) starts on a floor far from the map's zero: drawn at the
+    standard eye height over zero, staying put imagined the present view at 20.8 dB."""
+    import argparse
+    import importlib.util
+
+    from worldpack_client import Client
+
+    spec = importlib.util.spec_from_file_location("plan_to_goal", ROOT / "clients" / "python" / "examples" / "plan_to_goal.py")
+    plan = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(plan)
+    server, url = start(tmp_path, "--model", str(ROOT / "fixtures" / "doom" / "geometry_fused"))
+    world = plan.DoomWorld(Client(url), argparse.Namespace(stop="stay", out_steps=6, seed=0, score="psnr", sampler_steps=None))
+    try:
+        s, _, _, view, _ = world.start(1, False, np.random.default_rng(101))
+        stay = world.actions.index(plan.STAY)
+        imagined = world.imagine(s, np.array([[stay]]), view).rollouts[0].goal["psnr_db"]
+        assert imagined > 33.0, imagined
+    finally:
+        world.close()
+        server.terminate()
+        server.wait(timeout=30)
+
 def test_the_engine_turns_to_the_angle_asked_for_from_the_first_view():
     """A turn asked for in the first tics after a map loads once did not take (the view
     stayed at the spawn angle): `view_at` turns until the engine reports the angle."""

@@ -59,8 +59,8 @@ STAY: dict = {}
 # of the 36 two-step sequences, and a view can score 30 dB against the goal's a metre away
 # while one at the goal's place scores 20: there the planner scores every sequence and stops
 # when staying put is the best of them.
-DEFAULTS = {"voxel": {"out_steps": 6, "stop": "view", "stop_db": 22.0, "reach": 0.5, "search": "cem"},
-            "doom": {"out_steps": 6, "stop": "stay", "stop_db": 30.0, "reach": 0.5, "search": "all"}}
+DEFAULTS = {"voxel": {"out_steps": 6, "stop": "view", "stop_db": 22.0, "stop_margin": 0.0, "reach": 0.5, "search": "cem"},
+            "doom": {"out_steps": 6, "stop": "stay", "stop_db": 30.0, "stop_margin": 0.0, "reach": 0.5, "search": "all"}}
 
 
 def yaw_of(pose: dict) -> float:
@@ -207,7 +207,7 @@ class DoomWorld:
         goal = (p, angle) if seen else (p, angle + 180.0)
         goal_image, _, _ = self.frame(engine, *goal[0], goal[1])
         x, a_ = line[-1]
-        self.state[s] = (map_name, np.asarray(x, float), a_)
+        self.state[s] = (map_name, np.asarray(x, float), a_, self.eye(pose))
         return s, goal_image, goal, rgb, (x, a_)
 
     def move(self, geom, x: np.ndarray, angle: float, choice: int, walls: bool):
@@ -220,28 +220,30 @@ class DoomWorld:
         return x, angle
 
     def act(self, s: int, choice: int):
-        map_name, x, angle = self.state[s]
+        map_name, x, angle, _ = self.state[s]
         engine, geom = self.world(map_name)
         x, angle = self.move(geom, x, angle, choice, walls=True)
         rgb, depth, pose = self.frame(engine, *x, angle)
         self.c.observe(s, rgb, pose, depth_mm=depth, action=self.actions[choice])
-        self.state[s] = (map_name, x, angle)
+        self.state[s] = (map_name, x, angle, self.eye(pose))
         return rgb, (x, angle)
 
     def imagine(self, s: int, seqs: np.ndarray, goal: np.ndarray):
-        map_name, x0, a0 = self.state[s]
+        map_name, x0, a0, eye = self.state[s]
         poses = []
         for seq in seqs:
             x, angle, track = x0, a0, []
             for i in seq:
                 x, angle = self.move(None, x, angle, int(i), walls=False)
-                track.append(self.E.map_to_world(self.E.camera_to_map(*x, self.E.EYE_HEIGHT, angle)))
+                # At the present eye height: floors differ between sectors and maps, and a
+                # candidate drawn a few metres above or below the floor sees nothing it should.
+                track.append(self.E.map_to_world(self.E.camera_to_map(*x, eye, angle)))
             poses.append(track)
         return self.c.imagine(s, [[self.actions[i] for i in seq] for seq in seqs], poses=poses, seed=self.a.seed,
                               frames="none", goal=goal, goal_score=goal_scoring(self.a), steps=self.a.sampler_steps)
 
     def rendered(self, s: int, seqs: np.ndarray, goal: np.ndarray) -> np.ndarray:
-        map_name, x0, a0 = self.state[s]
+        map_name, x0, a0, _ = self.state[s]
         engine, geom = self.world(map_name)
         out = []
         for seq in seqs:
@@ -250,6 +252,10 @@ class DoomWorld:
                 x, angle = self.move(geom, x, angle, int(i), walls=True)
             out.append(psnr(self.frame(engine, *x, angle)[0], goal))
         return np.array(out)
+
+    def eye(self, pose: np.ndarray) -> float:
+        """The eye's height in map units (the floor's plus the eye's) of a world pose."""
+        return float(pose[1, 3] * self.E.UNITS_PER_METRE)
 
     def apart(self, a, b) -> tuple[float, float]:
         """Distance (metres) and heading difference (degrees) of two (map point, angle) poses."""
@@ -280,6 +286,10 @@ def every_sequence(world, s: int, goal: np.ndarray, a) -> tuple[np.ndarray, floa
     seqs = seqs[np.argsort(-(seqs >= world.moves).sum(axis=1), kind="stable")]
     scores = score(world, s, goal, seqs, a)
     best = int(np.argmax(scores))
+    # Imagined frames carry the model's error (a few tenths of a dB here), so a move must
+    # beat staying put throughout (the first sequence) by more than that to be taken.
+    if a.stop == "stay" and scores[best] - scores[0] < a.stop_margin:
+        best = 0
     return seqs[best], float(scores[best])
 
 
@@ -307,7 +317,8 @@ def score(world, s: int, goal: np.ndarray, seqs: np.ndarray, a) -> np.ndarray:
         return world.rendered(s, seqs, goal)
     r = world.imagine(s, seqs, goal)
     if a.score == "latent":
-        return np.array([-ro.goal["latent_mse"] for ro in r.rollouts])
+        # In decibels, as PSNR is, so that one --stop-margin reads the same for both.
+        return np.array([-10.0 * np.log10(max(ro.goal["latent_mse"], 1e-12)) for ro in r.rollouts])
     return np.array([ro.goal["psnr_db"] for ro in r.rollouts])
 
 
@@ -392,6 +403,8 @@ def main():
     ap.add_argument("--sampler-steps", type=int, default=None)
     ap.add_argument("--stop", choices=["view", "stay"], default=None,
                     help="stop when the view is within --stop-db of the goal (voxel), or when the planner's best future is to stay put (Doom; random then never stops)")
+    ap.add_argument("--stop-margin", type=float, default=None,
+                    help="with --stop stay, a move is taken only if its best future scores this many dB over staying put")
     ap.add_argument("--stop-db", type=float, default=None,
                     help="stop when the view's PSNR against the goal reaches this (voxel 22, Doom 30: a Doom view a step from the goal's scores 24 to 34)")
     ap.add_argument("--reach", type=float, default=None,
