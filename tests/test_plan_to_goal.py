@@ -48,7 +48,7 @@ class Line:
 
 
 def settings(**kw):
-    a = dict(policy="truth", search="all", horizon=2, stop="stay", stop_db=30.0, max_steps=10, first_world=0, reach=0.5, turn=20.0)
+    a = dict(policy="truth", search="all", horizon=2, stop="stay", stop_db=30.0, stop_margin=0.0, stop_on_return=0, max_steps=10, first_world=0, reach=0.5, turn=20.0)
     a.update(kw)
     return argparse.Namespace(**a)
 
@@ -69,3 +69,25 @@ def test_without_the_stay_rule_a_planner_stops_by_the_view():
     world.actions = world.actions[:2]
     r = plan.run_episode(world, 0, settings(stop="view", stop_db=60.0))
     assert (r["steps"], r["stopped"], r["success"]) == (2, True, True), r
+
+
+def test_a_stop_margin_keeps_moves_that_gain_less_than_it():
+    # Two steps forward gain 2 over staying, one step 1: with a margin of 1.5 the planner
+    # walks while the goal is two steps off and stops one step short of it.
+    r = plan.run_episode(Line(goal=3), 0, settings(stop_margin=1.5))
+    assert (r["steps"], r["stopped"], r["success"], r["final_distance"]) == (2, True, False, 1.0), r
+
+
+class Dithering(Line):
+    """A model that always favours the other way: forward from even places, back from odd."""
+
+    def rendered(self, s, seqs, goal):
+        favoured = self.x % 2
+        return np.array([1.0 if int(seq[0]) == favoured else 0.0 for seq in seqs])
+
+
+def test_coming_back_to_a_pose_it_stood_at_stops_the_planner_there():
+    r = plan.run_episode(Dithering(goal=0), 0, settings(stop_on_return=1))
+    assert (r["steps"], r["stopped"], r["final_distance"]) == (2, True, 0.0), r
+    r = plan.run_episode(Dithering(goal=0), 0, settings())
+    assert (r["steps"], r["stopped"]) == (10, False), r

@@ -59,8 +59,10 @@ STAY: dict = {}
 # of the 36 two-step sequences, and a view can score 30 dB against the goal's a metre away
 # while one at the goal's place scores 20: there the planner scores every sequence and stops
 # when staying put is the best of them.
-DEFAULTS = {"voxel": {"out_steps": 6, "stop": "view", "stop_db": 22.0, "stop_margin": 0.0, "reach": 0.5, "search": "cem"},
-            "doom": {"out_steps": 6, "stop": "stay", "stop_db": 30.0, "stop_margin": 0.0, "reach": 0.5, "search": "all"}}
+DEFAULTS = {"voxel": {"out_steps": 6, "stop": "view", "stop_db": 22.0, "stop_margin": 0.0, "stop_on_return": 0, "reach": 0.5, "search": "cem",
+                      "score": "psnr"},
+            "doom": {"out_steps": 6, "stop": "stay", "stop_db": 30.0, "stop_margin": 0.0, "stop_on_return": 1, "reach": 0.5, "search": "all",
+                     "score": "latent"}}
 
 
 def yaw_of(pose: dict) -> float:
@@ -326,7 +328,7 @@ def run_episode(world, e: int, a) -> dict:
     rng = np.random.default_rng(a.first_world + e)
     seen = e % 2 == 0
     s, goal, goal_pose, view, start_pose = world.start(e, seen, rng)
-    pose, steps, decide_s, stopped = start_pose, 0, [], False
+    pose, steps, decide_s, stopped, visited = start_pose, 0, [], False, [start_pose]
     while steps < a.max_steps:
         if a.stop == "view" and psnr(view, goal) >= a.stop_db:
             stopped = True
@@ -345,6 +347,12 @@ def run_episode(world, e: int, a) -> dict:
             break
         view, pose = world.act(s, choice)
         steps += 1
+        # Back where it stood before (a move undone, a step into a wall): the planner is
+        # circling a place its imagination cannot tell from the goal, so it stops there.
+        if a.stop_on_return and any(d < 1e-3 and deg < 0.5 for d, deg in (world.apart(pose, v) for v in visited)):
+            stopped = True
+            break
+        visited.append(pose)
     reach, turn = world.apart(pose, goal_pose)
     start_reach, start_turn = world.apart(start_pose, goal_pose)
     world.end(s)
@@ -399,12 +407,15 @@ def main():
     ap.add_argument("--horizon", type=int, default=2)
     ap.add_argument("--iterations", type=int, default=2)
     ap.add_argument("--elites", type=int, default=3)
-    ap.add_argument("--score", choices=["psnr", "latent"], default="psnr", help="the imagined last frame against the goal")
+    ap.add_argument("--score", choices=["psnr", "latent"], default=None,
+                    help="the imagined last frame against the goal (voxel psnr; Doom latent, which leaves it undecoded)")
     ap.add_argument("--sampler-steps", type=int, default=None)
     ap.add_argument("--stop", choices=["view", "stay"], default=None,
                     help="stop when the view is within --stop-db of the goal (voxel), or when the planner's best future is to stay put (Doom; random then never stops)")
     ap.add_argument("--stop-margin", type=float, default=None,
                     help="with --stop stay, a move is taken only if its best future scores this many dB over staying put")
+    ap.add_argument("--stop-on-return", type=int, choices=[0, 1], default=None,
+                    help="1: also stop on coming back to a pose already stood at in the episode (Doom 1, voxel 0)")
     ap.add_argument("--stop-db", type=float, default=None,
                     help="stop when the view's PSNR against the goal reaches this (voxel 22, Doom 30: a Doom view a step from the goal's scores 24 to 34)")
     ap.add_argument("--reach", type=float, default=None,
