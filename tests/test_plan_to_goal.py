@@ -91,3 +91,8 @@ def test_coming_back_to_a_pose_it_stood_at_stops_the_planner_there():
     assert (r["steps"], r["stopped"], r["final_distance"]) == (2, True, 0.0), r
     r = plan.run_episode(Dithering(goal=0), 0, settings())
     assert (r["steps"], r["stopped"]) == (10, False), r
+
+
+def test_the_sign_test_counts_episodes_won_and_lost():
+    # 3 won, none lost: 2 · (1/2)³; 6 to 1: 2 · (1 + 7)/2⁷.
+    assert plan.sign_test(3, 0) == 0.25 and plan.sign_test(6, 1) == 0.125 and plan.sign_test(0, 0) == 1.0

@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 import time
 from pathlib import Path
@@ -375,17 +376,34 @@ def summary(rows: list[dict]) -> str:
         if sel:
             lines.append(f"{name:<12} success {np.mean([r['success'] for r in sel]):.2f} of {len(sel)}, steps {np.mean([r['steps'] for r in sel]):.1f}, "
                          f"final {np.mean([r['final_distance'] for r in sel]):.2f} away / {np.mean([r['final_deg'] for r in sel]):.0f}°")
+    decided = [r["decide_s_median"] for r in rows if r["steps"] > 0 and r["decide_s_median"] > 0]
+    if decided:
+        lines[0] += f", decision {np.median(decided):.2f} s (median of the episodes' medians)"
     return "\n".join(lines)
+
+
+def sign_test(won: int, lost: int) -> float:
+    """Two-sided p of `won` against `lost` episodes under no difference (ties dropped)."""
+    n = won + lost
+    return min(1.0, 2 * sum(math.comb(n, i) for i in range(min(won, lost) + 1)) / 2 ** n) if n else 1.0
 
 
 def compare(a_path: str, b_path: str) -> None:
     a, b = (json.loads(Path(p).read_text()) for p in (a_path, b_path))
+    for run in (a, b):
+        print(f"{run['label']}:\n" + "\n".join("  " + line for line in summary(run["episodes"]).splitlines()))
     by = {r["episode"]: r for r in b["episodes"]}
     pairs = [(r, by[r["episode"]]) for r in a["episodes"] if r["episode"] in by]
     print(f"{a['label']} − {b['label']}, paired over {len(pairs)} episodes (mean [95% interval]):")
-    for what, key in [("success", "success"), ("steps", "steps"), ("final distance", "final_distance")]:
-        m, lo, hi = bootstrap(np.array([float(x[key]) - float(y[key]) for x, y in pairs]))
-        print(f"  {what:<24} {m:+.2f} [{lo:+.2f}, {hi:+.2f}]")
+    for what, key, sel in [("success", "success", None), ("steps", "steps", None), ("final distance", "final_distance", None),
+                           ("final distance, seen", "final_distance", True), ("final distance, unseen", "final_distance", False)]:
+        d = np.array([float(x[key]) - float(y[key]) for x, y in pairs if sel is None or x["goal_seen"] == sel])
+        if len(d):
+            m, lo, hi = bootstrap(d)
+            print(f"  {what:<24} {m:+.2f} [{lo:+.2f}, {hi:+.2f}]")
+    won = sum(x["success"] and not y["success"] for x, y in pairs)
+    lost = sum(y["success"] and not x["success"] for x, y in pairs)
+    print(f"  episodes won {won}, lost {lost} (sign test p = {sign_test(won, lost):.3f})")
 
 
 def main():
