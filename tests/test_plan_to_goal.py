@@ -48,7 +48,7 @@ class Line:
 
 
 def settings(**kw):
-    a = dict(policy="truth", search="all", horizon=2, stop="stay", stop_db=30.0, stop_margin=0.0, stop_on_return=0, max_steps=10, first_world=0, reach=0.5, turn=20.0)
+    a = dict(policy="truth", search="all", horizon=2, stop="stay", stop_db=30.0, stop_margin=0.0, stop_on_return=0, pictures=None, max_steps=10, first_world=0, reach=0.5, turn=20.0)
     a.update(kw)
     return argparse.Namespace(**a)
 
@@ -96,3 +96,13 @@ def test_coming_back_to_a_pose_it_stood_at_stops_the_planner_there():
 def test_the_sign_test_counts_episodes_won_and_lost():
     # 3 won, none lost: 2 · (1/2)³; 6 to 1: 2 · (1 + 7)/2⁷.
     assert plan.sign_test(3, 0) == 0.25 and plan.sign_test(6, 1) == 0.125 and plan.sign_test(0, 0) == 1.0
+
+
+def test_an_episode_is_drawn_as_the_goal_then_every_view(tmp_path):
+    from worldpack_client.client import decode_image
+
+    plan.run_episode(Line(goal=3), 0, settings(pictures=str(tmp_path)))
+    strip = decode_image((tmp_path / "episode-00.png").read_bytes())
+    # 4-pixel views at 2x: the goal, a 1-pixel gap, the start and the 3 views after each step.
+    assert strip.shape == (8, 2 * (4 + 1 + 4 * 4), 3)
+    assert (strip[:, :8] == 30).all() and (strip[:, 10:18] == 0).all() and (strip[:, -8:] == 30).all()

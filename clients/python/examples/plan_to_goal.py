@@ -46,6 +46,7 @@ from pathlib import Path
 import numpy as np
 
 from worldpack_client import Client
+from worldpack_client.client import png_bytes
 from worldpack_train.metrics import psnr
 
 # The planner's actions: one key or a turn of 15° per step.
@@ -332,6 +333,7 @@ def run_episode(world, e: int, a) -> dict:
     seen = e % 2 == 0
     s, goal, goal_pose, view, start_pose = world.start(e, seen, rng)
     pose, steps, decide_s, stopped, visited = start_pose, 0, [], False, [start_pose]
+    views = [view]
     while steps < a.max_steps:
         if a.stop == "view" and psnr(view, goal) >= a.stop_db:
             stopped = True
@@ -349,6 +351,7 @@ def run_episode(world, e: int, a) -> dict:
             stopped = True
             break
         view, pose = world.act(s, choice)
+        views.append(view)
         steps += 1
         # Back where it stood before (a move undone, a step into a wall): the planner is
         # circling a place its imagination cannot tell from the goal, so it stops there.
@@ -359,10 +362,20 @@ def run_episode(world, e: int, a) -> dict:
     reach, turn = world.apart(pose, goal_pose)
     start_reach, start_turn = world.apart(start_pose, goal_pose)
     world.end(s)
+    if a.pictures:
+        write_strip(Path(a.pictures) / f"episode-{e:02d}.png", goal, views)
     return {"episode": e, "world": a.first_world + e, "goal_seen": seen, "stopped": stopped, "steps": steps,
             "success": bool(stopped and reach <= a.reach and turn <= a.turn), "final_distance": reach, "final_deg": turn,
             "start_distance": start_reach, "start_deg": start_turn, "final_psnr_db": psnr(view, goal),
             "decide_s_median": float(np.median(decide_s)) if decide_s else 0.0}
+
+
+def write_strip(path: Path, goal: np.ndarray, views: list[np.ndarray]) -> None:
+    """The goal, a gap, then the agent's view at the start and after every action, at 2x."""
+    gap = np.full((goal.shape[0], goal.shape[1] // 4, 3), 255, np.uint8)
+    strip = np.concatenate([goal, gap, *views], axis=1).repeat(2, axis=0).repeat(2, axis=1)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_bytes(png_bytes(strip))
 
 
 def bootstrap(diff: np.ndarray, draws: int = 10000, seed: int = 0) -> tuple[float, float, float]:
@@ -442,6 +455,8 @@ def main():
                     help="success: within this distance of the goal's position (voxel 0.5 blocks, Doom 0.5 m)")
     ap.add_argument("--turn", type=float, default=20.0, help="and this many degrees of its heading")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--only", default=None, help="run only these episodes (comma-separated numbers)")
+    ap.add_argument("--pictures", default=None, help="write each episode's goal and views as a PNG strip into this folder")
     ap.add_argument("--label", default=None)
     ap.add_argument("--out", default=None)
     ap.add_argument("--compare", nargs=2, metavar=("A", "B"))
@@ -456,7 +471,7 @@ def main():
     label = a.label or f"{a.policy} @ {a.url}"
     rows = []
     try:
-        for e in range(a.episodes):
+        for e in ([int(x) for x in a.only.split(",")] if a.only else range(a.episodes)):
             r = run_episode(world, e, a)
             rows.append(r)
             print(f"episode {e:2d} goal {'seen' if r['goal_seen'] else 'unseen':<6} {'success' if r['success'] else 'miss   '} "
