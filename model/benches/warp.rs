@@ -2,14 +2,15 @@
 //! three best stored frames splatted into the target view behind one z-buffer
 //! (the warp input, before its encoder call) and the fused reference the
 //! fusion head blends with (the same warp, cracks filled, holes from the best
-//! frame). Real frames: the export's fused warp case of
-//! fixtures/variants/worldpack_geometry. `cargo bench -p model`.
+//! frame), each alone and both from one projection as a step makes them. Real
+//! frames: the export's fused warp case of fixtures/variants/worldpack_geometry.
+//! `cargo bench -p model`.
 
 use std::path::{Path, PathBuf};
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use memory::Pose;
-use model::warp::{forward_warp_many, fused_reference};
+use model::warp::{Landings, REFERENCE_MARGIN, forward_warp_many, fused_reference};
 use model::{Manifest, WarpSource};
 
 fn fixture() -> PathBuf {
@@ -37,6 +38,13 @@ fn warp(c: &mut Criterion) {
         .collect();
     c.bench_function("warp_3_sources_64x64", |b| b.iter(|| forward_warp_many(&sources, &target).unwrap()));
     c.bench_function("fused_reference_3_sources_64x64", |b| b.iter(|| fused_reference(&sources, &target).unwrap()));
+    // What a fused model's step does: both warps from one projection.
+    c.bench_function("warp_and_reference_one_projection_3_sources_64x64", |b| {
+        b.iter(|| {
+            let landings = Landings::of(&sources, &target).unwrap();
+            (landings.resolve(0.0), landings.resolve(REFERENCE_MARGIN).into_reference(&sources[0]))
+        })
+    });
 }
 
 criterion_group!(benches, warp);

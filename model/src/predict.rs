@@ -14,7 +14,7 @@ use crate::manifest::LayoutSpec;
 use crate::pack::{ContextFrame, pack, stack};
 use crate::sampler::Sampler;
 use crate::manifest::FUSION_INPUTS;
-use crate::warp::{WarpSource, Warped, coverage_grid, forward_warp_many, fused_reference, stands_at, warped_image};
+use crate::warp::{Landings, REFERENCE_MARGIN, WarpSource, Warped, coverage_grid, stands_at, warped_image};
 use crate::{GraphRole, Model};
 
 /// Interleaved RGB bytes as (3, n) planar values in [-1, 1].
@@ -130,11 +130,14 @@ impl Model {
         }
         let contexts: Vec<&[(String, Tensor)]> = packed.iter().map(|p| p.tensors.as_slice()).collect();
         let mut context = stack(&contexts);
-        let mut warps = Vec::new();
+        // Each request's sources projected into its target once: the warp
+        // input resolves them plainly, the fusion head's reference by margin.
+        let mut landings = Vec::new();
         let warp_ms = match &manifest.denoiser.warp {
             Some(spec) => {
                 let started = Instant::now();
-                warps = requests.iter().map(|r| self.warp_of(r.warp, r.target_pose)).collect::<Result<_, _>>()?;
+                landings = requests.iter().map(|r| self.landings_of(r.warp, r.target_pose)).collect::<Result<_, _>>()?;
+                let warps: Vec<Option<Warped>> = landings.iter().map(|l| l.as_ref().map(|l| l.resolve(0.0))).collect();
                 context.push((spec.input.clone(), self.encode_warps(&warps)?));
                 started.elapsed().as_secs_f64() * 1e3
             }
@@ -155,9 +158,9 @@ impl Model {
         let started = Instant::now();
         let mut images = self.decode(&latent)?;
         let mut latent = latent;
-        let fused: Vec<usize> = (0..warps.len()).filter(|&j| warps[j].is_some()).collect();
+        let fused: Vec<usize> = (0..landings.len()).filter(|&j| landings[j].is_some()).collect();
         if manifest.fusion.is_some() && !fused.is_empty() {
-            let (shown, kept) = self.fuse(images, requests, &fused)?;
+            let (shown, kept) = self.fuse(images, requests, &landings, &fused)?;
             images = shown;
             // With the warp overlaid (below) the memory keeps that frame instead, encoded there.
             if !self.sampled_latents && !self.overlay_warp {
@@ -217,8 +220,9 @@ impl Model {
     /// (`warp::stands_at`: a static world seen again from where it was
     /// observed). `with` lists the requests that have sources. Returns the
     /// frames shown and, from a head with a second output, the frames the
-    /// memory keeps instead (a head pair's second head).
-    fn fuse(&self, images: Tensor, requests: &[Request], with: &[usize]) -> Result<(Tensor, Option<Tensor>), ModelError> {
+    /// memory keeps instead (a head pair's second head). `landings` holds
+    /// each request's sources projected into its target.
+    fn fuse(&self, images: Tensor, requests: &[Request], landings: &[Option<Landings>], with: &[usize]) -> Result<(Tensor, Option<Tensor>), ModelError> {
         let (w, h) = (self.manifest().image.width, self.manifest().image.height);
         let n = w * h;
         let mut out = images;
@@ -231,7 +235,9 @@ impl Model {
                 }
                 continue;
             }
-            let (rgb, mask) = fused_reference(requests[j].warp, requests[j].target_pose)?;
+            let Some(projected) = &landings[j] else { continue };
+            // warp::fused_reference, from the projection the warp input made.
+            let (rgb, mask) = projected.resolve(REFERENCE_MARGIN).into_reference(best);
             // Clamped, as the frames the head was trained on were.
             predicted.extend(out.data[j * 3 * n..(j + 1) * 3 * n].iter().map(|v| v.clamp(-1.0, 1.0)));
             reference.extend(planar(&rgb, n));
@@ -269,19 +275,19 @@ impl Model {
     /// item's source warped into its target pose and encoded, then the share
     /// of each latent cell the warp covers. No source: an empty warp.
     pub fn warp_input(&self, items: &[(&[WarpSource], &Pose)]) -> Result<Tensor, ModelError> {
-        let warps = items.iter().map(|(source, target)| self.warp_of(source, target)).collect::<Result<Vec<_>, _>>()?;
+        let warps = items.iter().map(|(source, target)| Ok(self.landings_of(source, target)?.map(|l| l.resolve(0.0)))).collect::<Result<Vec<_>, ModelError>>()?;
         self.encode_warps(&warps)
     }
 
-    /// `source` warped into `target` behind one z-buffer; `None` without a source.
-    fn warp_of(&self, source: &[WarpSource], target: &Pose) -> Result<Option<Warped>, ModelError> {
+    /// `source` projected into `target`; `None` without a source.
+    fn landings_of(&self, source: &[WarpSource], target: &Pose) -> Result<Option<Landings>, ModelError> {
         let Some(src) = source.first() else { return Ok(None) };
         let (w, h) = (self.manifest().image.width, self.manifest().image.height);
         let k = src.intrinsics;
         if (k.width as usize, k.height as usize) != (w, h) {
             return Err(ModelError::input("warp", format!("the source frame is {}x{}, the model takes {w}x{h}", k.width, k.height)));
         }
-        Ok(Some(forward_warp_many(source, target)?))
+        Ok(Some(Landings::of(source, target)?))
     }
 
     /// The warp input of [`Model::warp_input`] from warps already made.

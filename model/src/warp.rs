@@ -180,18 +180,72 @@ pub fn forward_warp_many(sources: &[WarpSource], dst: &Pose) -> Result<Warped, M
 /// source landed on only when nearer by more than `margin`, a share of the
 /// depth; within one source the z-test is plain.
 fn warp_behind(sources: &[WarpSource], dst: &Pose, margin: f64) -> Result<Warped, ModelError> {
-    let Some(first) = sources.first() else { return Err(ModelError::input("warp", "no frame to warp")) };
-    let (w, h) = (first.intrinsics.width as usize, first.intrinsics.height as usize);
-    let mut zbuffer = ZBuffer { key: vec![f64::INFINITY; w * h], owner: vec![usize::MAX; w * h], margin };
-    let mut out = Warped { rgb: vec![0; w * h * 3], mask: vec![false; w * h], depth: vec![0.0; w * h] };
-    for (n, src) in sources.iter().enumerate() {
-        let k = src.intrinsics;
-        if (k.width as usize, k.height as usize) != (w, h) {
-            return Err(ModelError::input("warp.intrinsics", format!("frames of {}x{} and {w}x{h} in one warp", k.width, k.height)));
+    Ok(Landings::of(sources, dst)?.resolve(margin))
+}
+
+/// Where every pixel of some sources lands in one target view, in the order
+/// the z-test takes them (source by source, row-major). Projecting is most of
+/// a warp's work; the model's warp input and the fused reference of one step
+/// differ only in their depth test, so they project once and resolve twice.
+#[derive(Clone, Debug)]
+pub struct Landings {
+    width: usize,
+    height: usize,
+    hits: Vec<Landing>,
+}
+
+#[derive(Clone, Copy, Debug)]
+struct Landing {
+    /// The target pixel, row-major.
+    to: u32,
+    /// The source it came from, best first.
+    source: u16,
+    sky: bool,
+    rgb: [u8; 3],
+    /// The z-buffer key: depth along the target's axis, or a sky key.
+    key: f64,
+}
+
+impl Landings {
+    /// `sources` (best first, one image size) projected into `dst`. Each
+    /// source pixel lands on the target pixel nearest its projection
+    /// (`floor(x + 0.5)`); a pixel with depth 0 is a direction at infinity
+    /// (rotation only).
+    pub fn of(sources: &[WarpSource], dst: &Pose) -> Result<Landings, ModelError> {
+        let Some(first) = sources.first() else { return Err(ModelError::input("warp", "no frame to warp")) };
+        let (w, h) = (first.intrinsics.width as usize, first.intrinsics.height as usize);
+        if sources.len() >= u16::MAX as usize {
+            return Err(ModelError::input("warp", format!("{} frames in one warp; at most {}", sources.len(), u16::MAX - 1)));
         }
-        splat(src, n, dst, &mut zbuffer, &mut out)?;
+        let mut hits = Vec::with_capacity(sources.len() * w * h);
+        for (n, src) in sources.iter().enumerate() {
+            let k = src.intrinsics;
+            if (k.width as usize, k.height as usize) != (w, h) {
+                return Err(ModelError::input("warp.intrinsics", format!("frames of {}x{} and {w}x{h} in one warp", k.width, k.height)));
+            }
+            project(src, n as u16, dst, &mut hits)?;
+        }
+        Ok(Landings { width: w, height: h, hits })
     }
-    Ok(out)
+
+    /// The warp behind one z-buffer where a source takes a pixel an earlier
+    /// (better) source landed on only when nearer by more than `margin`, a
+    /// share of the depth; within one source the z-test is plain, and ties go
+    /// to the earlier pixel.
+    pub fn resolve(&self, margin: f64) -> Warped {
+        let n = self.width * self.height;
+        let mut zbuffer = ZBuffer { key: vec![f64::INFINITY; n], owner: vec![u16::MAX; n], margin };
+        let mut out = Warped { rgb: vec![0; n * 3], mask: vec![false; n], depth: vec![0.0; n] };
+        for hit in &self.hits {
+            let j = hit.to as usize;
+            if zbuffer.take(j, hit.key, hit.source) {
+                out.rgb[3 * j..3 * j + 3].copy_from_slice(&hit.rgb);
+                out.mask[j] = true;
+                out.depth[j] = if hit.sky { f64::INFINITY } else { hit.key };
+            }
+        }
+        out
+    }
 }
 
 /// The depth test of a warp of several sources: each pixel's key (depth, or
@@ -199,13 +253,13 @@ fn warp_behind(sources: &[WarpSource], dst: &Pose, margin: f64) -> Result<Warped
 /// the source that set it.
 struct ZBuffer {
     key: Vec<f64>,
-    owner: Vec<usize>,
+    owner: Vec<u16>,
     margin: f64,
 }
 
 impl ZBuffer {
     /// Whether source `n` at `key` takes pixel `j`; it does when it wins.
-    fn take(&mut self, j: usize, key: f64, n: usize) -> bool {
+    fn take(&mut self, j: usize, key: f64, n: u16) -> bool {
         let wins = key < if self.owner[j] != n { self.key[j] * (1.0 - self.margin) } else { self.key[j] };
         if wins {
             self.key[j] = key;
@@ -215,8 +269,8 @@ impl ZBuffer {
     }
 }
 
-/// Source number `n` into the shared z-buffer and image `out`.
-fn splat(src: &WarpSource, n: usize, dst: &Pose, zbuffer: &mut ZBuffer, out: &mut Warped) -> Result<(), ModelError> {
+/// Source number `n`'s pixels that land in `dst`'s view, appended to `hits`.
+fn project(src: &WarpSource, n: u16, dst: &Pose, hits: &mut Vec<Landing>) -> Result<(), ModelError> {
     let k = src.intrinsics;
     let (w, h) = (k.width as usize, k.height as usize);
     if src.rgb.len() != w * h * 3 {
@@ -243,18 +297,22 @@ fn splat(src: &WarpSource, n: usize, dst: &Pose, zbuffer: &mut ZBuffer, out: &mu
             if !ahead {
                 continue;
             }
-            let x = (k.fx * q.x / q.z + k.cx + 0.5).floor();
-            let y = (k.fy * q.y / q.z + k.cy + 0.5).floor();
-            if x < 0.0 || y < 0.0 || x >= w as f64 || y >= h as f64 {
+            // floor(x + 0.5) within [0, w) is x + 0.5 in [0, w) truncated
+            // (floor is a library call on the baseline x86-64 target).
+            let x = k.fx * q.x / q.z + k.cx + 0.5;
+            let y = k.fy * q.y / q.z + k.cy + 0.5;
+            if !(x >= 0.0 && y >= 0.0 && x < w as f64 && y < h as f64) {
                 continue;
             }
             let j = y as usize * w + x as usize;
-            let depth_key = if sky { SKY_KEY + i as f64 } else { q.z };
-            if zbuffer.take(j, depth_key, n) {
-                out.rgb[3 * j..3 * j + 3].copy_from_slice(&src.rgb[3 * i..3 * i + 3]);
-                out.mask[j] = true;
-                out.depth[j] = if sky { f64::INFINITY } else { q.z };
-            }
+            let p = 3 * i;
+            hits.push(Landing {
+                to: j as u32,
+                source: n,
+                sky,
+                rgb: [src.rgb[p], src.rgb[p + 1], src.rgb[p + 2]],
+                key: if sky { SKY_KEY + i as f64 } else { q.z },
+            });
         }
     }
     Ok(())
