@@ -7,8 +7,10 @@
 #   1. parity: the served voxel model and fixtures/small, the same walk (40 observed
 #      steps, 38 generated) on both providers, latent and frame compared frame by frame;
 #   2. bench walk on CUDA at 1, 4 and 16 sessions, and on the CPU at 1 for scale;
-#   3. bench serve at 16 sessions, batching off and on (5 ms window);
-#   4. the paper-scale step (CDiT-B/2, 224x224; weights made there, seeded, by
+#   3. bench imagine on CUDA (K = 1, 4, 16; H = 2), candidates apart and as the
+#      example planner draws them (the fork-and-imagine figures on a GPU);
+#   4. bench serve at 16 sessions, batching off and on (5 ms window);
+#   5. the paper-scale step (CDiT-B/2, 224x224; weights made there, seeded, by
 #      `cuda.sh prepare`, which an earlier call can run beside training, or here).
 # Every part has its own time limit, and each one's output and time go under $OUT.
 set -uo pipefail
@@ -70,6 +72,8 @@ part parity-served 90 "$bin" bench parity --model "$served" --provider "$provide
 part parity-small 90 "$bin" bench parity --model "$fixtures/fixtures/small" --provider "$provider" --steps 10 --json
 part walk-cuda 120 "$bin" bench walk --model "$served" --provider "$provider" --sessions 1,4,16 --json
 part walk-cpu 60 "$bin" bench walk --model "$served" --sessions 1 --json
+part imagine-cuda 120 "$bin" bench imagine --model "$served" --provider "$provider" --horizon 2 --rounds 3 --json
+part imagine-drawn-cuda 120 "$bin" bench imagine --model "$served" --provider "$provider" --horizon 2 --rounds 3 --drawn --json
 part serve-cuda 120 "$bin" bench serve --model "$fixtures/fixtures/small" --provider "$provider" --sessions 16 --batch-window-ms 5 --json
 [ "${PAPER:-1}" = 1 ] || { note "done (no paper scale)"; exit 0; }
 [ -f "$paper/model/manifest.json" ] || { paper_weights >> "$log" 2>&1; note "paper-scale weights made"; }
