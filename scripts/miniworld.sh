@@ -5,7 +5,8 @@
 #   ./scripts/miniworld.sh data      # data/mw-{train,val,test-aba,test-abca}: 200 / 16 / 48 / 48 walks, checked and planned
 #   ./scripts/miniworld.sh train     # ./scripts/train.sh --from doom --hours HOURS (1.5) -> runs/mw
 #   ./scripts/miniworld.sh eval SUITE   # the served configuration against the model it started from, its own
-#                                    # baseline and the references, paired (MODEL: runs/mw; THREADS: 2)
+#                                    # baseline and the references, paired (MODEL: runs/mw; THREADS: 2;
+#                                    # EVAL_OUT: runs/mw-eval, which `ship` and figures.sh read)
 #   ./scripts/miniworld.sh walk      # a REST walk of a held-out ABCA walk through the Python client -> docs/miniworld/
 #   ./scripts/miniworld.sh ship      # the served model and its card into fixtures/miniworld/geometry_fused, the card
 #                                    # with the held-out suites' tables (from runs/mw-eval/*/results.json)
@@ -37,7 +38,7 @@ case "${1:-}" in
       --extra served="$model" --covisible served --extra started_from=fixtures/doom/geometry_fused --covisible started_from \
       --only served_covisible --only started_from_covisible --only baseline --probe-frames 32 \
       --against served_covisible --strip served_covisible,started_from_covisible,baseline --strip-frames 8 \
-      --threads "${THREADS:-2}" --out "runs/mw-eval/$(basename "$s")" ;;
+      --threads "${THREADS:-2}" --out "${EVAL_OUT:-runs/mw-eval}/$(basename "$s")" ;;
   walk)
     mkdir -p docs/miniworld
     "$bin" serve --model "$model" --store /tmp/mw-walk.redb --addr 127.0.0.1:18180 & pid=$!
