@@ -52,11 +52,12 @@ pub struct Predicted {
 pub struct Prediction {
     pub frames: Vec<Predicted>,
     pub layout: String,
-    /// Warping and encoding the geometry model's warp input (0 without one).
+    /// Warping and encoding the geometry model's warp input, and with a
+    /// fusion head its reference warp (0 without a warp input).
     pub warp_ms: f64,
     pub sample_ms: f64,
-    /// Decoding, and with a fusion head its reference warp, blend and the
-    /// re-encoding of the blended frames.
+    /// Decoding, and with a fusion head its blend and the re-encoding of the
+    /// blended frames.
     pub decode_ms: f64,
 }
 
@@ -130,14 +131,19 @@ impl Model {
         }
         let contexts: Vec<&[(String, Tensor)]> = packed.iter().map(|p| p.tensors.as_slice()).collect();
         let mut context = stack(&contexts);
-        // Each request's sources projected into its target once: the warp
-        // input resolves them plainly, the fusion head's reference by margin.
-        let mut landings = Vec::new();
+        // Each request's sources are projected into its target once: the warp
+        // input resolves them plainly, a fusion head's reference by margin.
+        let mut references = Vec::new();
         let warp_ms = match &manifest.denoiser.warp {
             Some(spec) => {
                 let started = Instant::now();
-                landings = requests.iter().map(|r| self.landings_of(r.warp, r.target_pose)).collect::<Result<_, _>>()?;
-                let warps: Vec<Option<Warped>> = landings.iter().map(|l| l.as_ref().map(|l| l.resolve(0.0))).collect();
+                let mut warps = Vec::with_capacity(requests.len());
+                for r in requests {
+                    let landings = self.landings_of(r.warp, r.target_pose)?;
+                    warps.push(landings.as_ref().map(|l| l.resolve(0.0)));
+                    // warp::fused_reference, from the same projection.
+                    references.push(landings.filter(|_| manifest.fusion.is_some()).map(|l| l.resolve(REFERENCE_MARGIN).into_reference(&r.warp[0])));
+                }
                 context.push((spec.input.clone(), self.encode_warps(&warps)?));
                 started.elapsed().as_secs_f64() * 1e3
             }
@@ -158,9 +164,9 @@ impl Model {
         let started = Instant::now();
         let mut images = self.decode(&latent)?;
         let mut latent = latent;
-        let fused: Vec<usize> = (0..landings.len()).filter(|&j| landings[j].is_some()).collect();
-        if manifest.fusion.is_some() && !fused.is_empty() {
-            let (shown, kept) = self.fuse(images, requests, &landings, &fused)?;
+        let fused: Vec<usize> = (0..references.len()).filter(|&j| references[j].is_some()).collect();
+        if !fused.is_empty() {
+            let (shown, kept) = self.fuse(images, requests, &references, &fused)?;
             images = shown;
             // With the warp overlaid (below) the memory keeps that frame instead, encoded there.
             if !self.sampled_latents && !self.overlay_warp {
@@ -220,9 +226,9 @@ impl Model {
     /// (`warp::stands_at`: a static world seen again from where it was
     /// observed). `with` lists the requests that have sources. Returns the
     /// frames shown and, from a head with a second output, the frames the
-    /// memory keeps instead (a head pair's second head). `landings` holds
-    /// each request's sources projected into its target.
-    fn fuse(&self, images: Tensor, requests: &[Request], landings: &[Option<Landings>], with: &[usize]) -> Result<(Tensor, Option<Tensor>), ModelError> {
+    /// memory keeps instead (a head pair's second head). `references` holds
+    /// each request's fused reference and where its warp landed.
+    fn fuse(&self, images: Tensor, requests: &[Request], references: &[Option<(Vec<u8>, Vec<bool>)>], with: &[usize]) -> Result<(Tensor, Option<Tensor>), ModelError> {
         let (w, h) = (self.manifest().image.width, self.manifest().image.height);
         let n = w * h;
         let mut out = images;
@@ -235,12 +241,10 @@ impl Model {
                 }
                 continue;
             }
-            let Some(projected) = &landings[j] else { continue };
-            // warp::fused_reference, from the projection the warp input made.
-            let (rgb, mask) = projected.resolve(REFERENCE_MARGIN).into_reference(best);
+            let Some((rgb, mask)) = &references[j] else { continue };
             // Clamped, as the frames the head was trained on were.
             predicted.extend(out.data[j * 3 * n..(j + 1) * 3 * n].iter().map(|v| v.clamp(-1.0, 1.0)));
-            reference.extend(planar(&rgb, n));
+            reference.extend(planar(rgb, n));
             landed.extend(mask.iter().map(|&m| m as u8 as f32));
             blend.push(j);
         }
