@@ -76,6 +76,20 @@ def test_gymnasium_check_env_passes(server):
     env.close()
 
 
+def test_the_environment_sees_and_answers_at_its_size(server):
+    env = WorldPackEnv(Client(server), max_steps=2, size=(96, 96))
+    assert env.observation_space["frame"].shape == (96, 96, 3)
+    check_env(env, skip_render_check=False)
+    obs, _ = env.reset(seed=4)
+    assert obs["frame"].shape == (96, 96, 3)
+    obs, *_ = env.step(env.action_space.sample())
+    assert obs["frame"].shape == (96, 96, 3) and env.observation_space.contains(obs)
+    env.close()
+    with pytest.raises(WorldPackError) as refused:
+        Client(server).create_session(synthetic_seed=4, size=4096)
+    assert refused.value.field == "synthetic.size" and "--max-frame-side" in str(refused.value)
+
+
 def test_every_sampled_action_is_accepted_and_episodes_truncate(server):
     env = WorldPackEnv(Client(server), max_steps=6)
     obs, info = env.reset(seed=3)

@@ -53,6 +53,9 @@ pub struct Config {
     pub sampled_latents: bool,
     /// What one `imagine` request may ask for.
     pub imagine: imagine::Limits,
+    /// The largest side of a session's frames; sessions keep and answer
+    /// frames at their own size up to it (`Engine::max_frame_side`).
+    pub max_frame_side: u32,
 }
 
 impl Default for Config {
@@ -79,6 +82,7 @@ impl Default for Config {
             tls: None,
             sampled_latents: false,
             imagine: imagine::Limits::default(),
+            max_frame_side: crate::engine::MAX_FRAME_SIDE,
         }
     }
 }

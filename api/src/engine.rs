@@ -8,6 +8,7 @@ use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
 use memory::{ContextPlan, Intrinsics, Pose};
+use model::full_size::{FullSize, full_size_frame};
 use model::generate::frame_to_tensor;
 use model::{Model, Sampler};
 use world::World;
@@ -26,8 +27,20 @@ pub struct Engine {
     pub model: Option<Model>,
     /// Gathers concurrent sessions' model calls into one (`Config::batch_window`); None: each step calls alone.
     pub batcher: Option<Batcher>,
+    /// The largest side of a session's frames (`serve --max-frame-side`):
+    /// frames are kept and answered at their own size up to it.
+    pub max_frame_side: u32,
+    /// How a frame larger than the model's is made (`model::full_size`).
+    pub full_size: FullSize,
     worlds: Mutex<HashMap<u64, Arc<World>>>,
 }
+
+/// The default of `serve --max-frame-side`: Doom's 320×240 screen and a
+/// 256×256 photo fit; a 512×512 frame's full-size stage is about 5× a 224×224 one's.
+pub const MAX_FRAME_SIDE: u32 = 512;
+
+/// Warp sources a full-size frame shows for a model that warps none itself.
+pub const FULL_SIZE_FRAMES: usize = 3;
 
 /// What one step produced.
 pub struct StepOutcome {
@@ -38,7 +51,7 @@ pub struct StepOutcome {
     pub plan: ContextPlan,
     pub layout: String,
     pub exact_evaluations: usize,
-    pub timings_ms: [f64; 5], // select, warp, sample, decode, store
+    pub timings_ms: [f64; 6], // select, warp, sample, decode, full_size, store
     /// The observed frames a geometry model warped into the new view, best
     /// first (empty for other models, or when no frame with depth sees it).
     pub warp_frames: Vec<u64>,
@@ -57,7 +70,7 @@ pub struct TruthScore {
 
 impl Engine {
     pub fn new(store: Store, model: Option<Model>) -> Engine {
-        Engine { store, model, batcher: None, worlds: Mutex::new(HashMap::new()) }
+        Engine { store, model, batcher: None, max_frame_side: MAX_FRAME_SIDE, full_size: FullSize::default(), worlds: Mutex::new(HashMap::new()) }
     }
 
     /// The synthetic world of `seed`, generated once and shared.
@@ -75,12 +88,28 @@ impl Engine {
         self.model.as_ref().ok_or_else(EngineError::no_model)
     }
 
-    /// The camera of synthetic sessions: the model's, else the world's default at 64x64.
-    pub fn synthetic_camera(&self) -> Result<Intrinsics, EngineError> {
-        match &self.model {
-            Some(m) => Ok(m.manifest().intrinsics),
-            None => Ok(world::suite::default_intrinsics(64, 64)?),
+    /// The camera of synthetic sessions: the model's (else the world's
+    /// default at 64x64), at `side` pixels wide when given, same field of view.
+    pub fn synthetic_camera(&self, side: Option<u32>) -> Result<Intrinsics, EngineError> {
+        let k = match &self.model {
+            Some(m) => m.manifest().intrinsics,
+            None => world::suite::default_intrinsics(64, 64)?,
+        };
+        let Some(side) = side else { return Ok(k) };
+        let height = ((side as f64 * k.height as f64 / k.width as f64).round() as u32).max(1);
+        self.check_frame_size("synthetic.size", side, height)?;
+        k.resized(side, height).map_err(|e| EngineError::invalid("synthetic.size", e.to_string()))
+    }
+
+    /// Refuses frames larger than the server keeps, naming `field`.
+    pub fn check_frame_size(&self, field: &str, width: u32, height: u32) -> Result<(), EngineError> {
+        if width.max(height) > self.max_frame_side {
+            return Err(EngineError::invalid(
+                field,
+                format!("{width}x{height} frames are larger than this server keeps ({} pixels on a side, `serve --max-frame-side`); resize them or raise the cap", self.max_frame_side),
+            ));
         }
+        Ok(())
     }
 
     /// The model's scaled latent of an RGB frame (empty without a model).
@@ -95,8 +124,9 @@ impl Engine {
     }
 
     /// A new session in the synthetic world: spawn (in `biome` if given), render, store.
-    pub fn create_synthetic(&self, policy: serde_json::Value, seed: u64, biome: Option<world::Biome>, tenant: Option<String>) -> Result<Session, EngineError> {
-        let k = self.synthetic_camera()?;
+    /// `side`: the session's frame width (default the model's); the model still sees its own size.
+    pub fn create_synthetic(&self, policy: serde_json::Value, seed: u64, biome: Option<world::Biome>, side: Option<u32>, tenant: Option<String>) -> Result<Session, EngineError> {
+        let k = self.synthetic_camera(side)?;
         let world = self.world(seed);
         let cell = world::agent::spawn_point(&world, biome)
             .ok_or_else(|| EngineError::invalid("synthetic.biome", "this world has no standable spawn in that biome"))?;
@@ -146,7 +176,7 @@ impl Engine {
             plan: ContextPlan { slots: Vec::new() },
             layout: String::new(),
             exact_evaluations: 0,
-            timings_ms: [0.0, 0.0, 0.0, 0.0, ms(t0)],
+            timings_ms: [0.0, 0.0, 0.0, 0.0, 0.0, ms(t0)],
             warp_frames: Vec::new(),
             truth: None,
             observed: true,
@@ -173,19 +203,21 @@ impl Engine {
             None => batch::call(m, &s.policy.packing, sampler, &[&item])?.remove(0),
         };
         let batch::Outcome { frame: predicted, layout, warp_ms, sample_ms, decode_ms: model_decode_ms, .. } = outcome;
-        let img = &m.manifest().image;
-        let truth = self.truth_at(s, &pose)?.map(|t| TruthScore {
-            psnr_db: eval::metrics::psnr(&predicted.rgb, &t),
-            ssim: eval::metrics::ssim(&predicted.rgb, &t, img.width, img.height).unwrap_or(f64::NAN),
-        });
         let t2 = Instant::now();
-        let png = encode_png(img.width as u32, img.height as u32, &predicted.rgb);
-        let decode_ms = model_decode_ms + ms(t2);
+        let (rgb, width, height) = self.at_session_size(s, predicted.rgb, &pose, &warp_frames)?;
+        let full_size_ms = ms(t2);
+        let truth = self.truth_at(s, &pose)?.map(|t| TruthScore {
+            psnr_db: eval::metrics::psnr(&rgb, &t),
+            ssim: eval::metrics::ssim(&rgb, &t, width as usize, height as usize).unwrap_or(f64::NAN),
+        });
         let t3 = Instant::now();
+        let png = encode_png(width, height, &rgb);
+        let decode_ms = model_decode_ms + ms(t3);
+        let t4 = Instant::now();
         let index = s.len();
         let record = FrameRecord { meta: meta(&pose, time, GENERATED, Some(action), player.as_ref()), latent: predicted.latent, png, depth_png16: Vec::new() };
         self.store.put_frame(s.id, index, &record)?;
-        let store_ms = ms(t3);
+        let store_ms = ms(t4);
         s.push(time, pose, record.latent, player, true)?;
         s.last_plan = Some(plan.clone());
         Ok(StepOutcome {
@@ -196,11 +228,32 @@ impl Engine {
             plan,
             layout,
             exact_evaluations,
-            timings_ms: [select_ms, warp_ms, sample_ms, decode_ms, store_ms],
+            timings_ms: [select_ms, warp_ms, sample_ms, decode_ms, full_size_ms, store_ms],
             warp_frames,
             truth,
             observed: false,
         })
+    }
+
+    /// The model's frame at `pose` shown at the session's size
+    /// (`model::full_size`): as it is when the session is at the model's
+    /// size, else with the stored frames (the model's warp sources, or the
+    /// best-overlap ones for a model that warps none) shown where they land and agree.
+    fn at_session_size(&self, s: &Session, small: Vec<u8>, pose: &Pose, warp_frames: &[u64]) -> Result<(Vec<u8>, u32, u32), EngineError> {
+        let img = &self.model()?.manifest().image;
+        let (sw, sh) = (img.width as u32, img.height as u32);
+        let k = *s.intrinsics();
+        if (k.width, k.height) == (sw, sh) {
+            return Ok((small, sw, sh));
+        }
+        let timeline = s.timeline();
+        let sources = if warp_frames.is_empty() {
+            timeline.warp_sources(&s.frustum(*pose)?, FULL_SIZE_FRAMES)?.1
+        } else {
+            timeline.warp_sources_of(warp_frames)
+        };
+        let frame = full_size_frame(&small, sw, sh, &sources, pose, k.width, k.height, &self.full_size)?;
+        Ok((frame.rgb, k.width, k.height))
     }
 
     /// A fork of `parent`: a new session of the same tenant, policy and
@@ -224,6 +277,9 @@ impl Engine {
     /// depth PNG when given, and commits it.
     pub fn observe(&self, s: &mut Session, rgb: &[u8], w: u32, h: u32, pose: Pose, action: Option<&Action>, depth_png16: Vec<u8>) -> Result<(u64, u64), EngineError> {
         let k = *s.intrinsics();
+        if (w, h) != (k.width, k.height) {
+            return Err(EngineError::invalid("image_png", format!("is {w}x{h}; the session's frames are {}x{}", k.width, k.height)));
+        }
         let latent = self.latent_of(rgb, w, h, &k, "image_png")?;
         s.frustum(pose)?;
         let time = s.history().next_time();

@@ -82,6 +82,7 @@ impl Server {
             return Err("--overlay-warp: a memory-only server runs no model".into());
         }
         let mut engine = Engine::new(store, model);
+        engine.max_frame_side = config.max_frame_side;
         engine.batcher = config.batch_window.map(|w| batch::Batcher::new(w, config.batch_max));
         if !config.addr.ip().is_loopback() && !config.tokens.enabled() && !config.allow_unauthenticated {
             return Err(format!(

@@ -265,15 +265,20 @@ impl<'a> Timeline<'a> {
     pub fn warp_sources(&self, target: &Frustum, count: usize) -> Result<(Vec<u64>, Vec<WarpSource<'a>>), EngineError> {
         let best = Policy { covisibility: self.session.policy.covisibility, ..Policy::best_overlap_frames(count) };
         let plan = self.plan_in(&self.history.depth_memory(), &best, target, None)?.plan;
+        let ids: Vec<u64> = plan.selected().map(|(_, f)| f.id).filter(|&id| self.history.depth_frame(id).is_some()).collect();
+        let sources = self.warp_sources_of(&ids);
+        Ok((ids, sources))
+    }
+
+    /// Frames `ids` (observed, with depth) ready to warp, in that order; ids without depth are left out.
+    pub fn warp_sources_of(&self, ids: &[u64]) -> Vec<WarpSource<'a>> {
         let intrinsics = self.session.intrinsics();
-        Ok(plan
-            .selected()
-            .filter_map(|(_, f)| {
-                let d = self.history.depth_frame(f.id)?;
-                let pose = &self.history.frame(f.id)?.pose;
-                Some((f.id, WarpSource { rgb: &d.rgb, depth_mm: &d.depth_mm, pose, intrinsics }))
+        ids.iter()
+            .filter_map(|&id| {
+                let d = self.history.depth_frame(id)?;
+                Some(WarpSource { rgb: &d.rgb, depth_mm: &d.depth_mm, pose: &self.history.frame(id)?.pose, intrinsics })
             })
-            .unzip())
+            .collect()
     }
 
     /// The pose after `action`: the world's physics in a synthetic session,

@@ -69,9 +69,9 @@ pub fn run(model_dir: &Path, other: RuntimeOptions, steps: usize, explore: usize
         let sampler = Sampler::new(&cpu.model()?.manifest().diffusion, steps, Method::Ddim, 0.0)?;
         let policy = json!({ "kind": "worldpack", "covisibility": memory::CoVisibility::default() });
         let fail = |e: api::EngineError| anyhow!("{}: {}", e.field, e.message);
-        let mut a = cpu.create_synthetic(policy.clone(), 7, None, None).map_err(fail)?;
-        let mut b = oth.create_synthetic(policy, 7, None, None).map_err(fail)?;
-        let walk = Walk { explore, back };
+        let mut a = cpu.create_synthetic(policy.clone(), 7, None, None, None).map_err(fail)?;
+        let mut b = oth.create_synthetic(policy, 7, None, None, None).map_err(fail)?;
+        let walk = Walk { explore, back, size: None };
         let mut frames = Vec::new();
         let mut decoder_max_abs = None;
         for i in 0..explore + TURN + back {

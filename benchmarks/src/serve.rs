@@ -75,7 +75,7 @@ pub fn run(
     let lib_store = temp_store("library");
     let engine = Engine::new(Store::open(&lib_store)?, Some(api::load_model(model_dir, model_backend, runtime).map_err(anyhow::Error::msg)?));
     let sampler = Sampler::new(&engine.model.as_ref().unwrap().manifest().diffusion, steps, model::Method::Ancestral, 0.0)?;
-    let mut session = engine.create_synthetic(policy.clone(), 3, None, None).map_err(|e| anyhow!("{}", e.message))?;
+    let mut session = engine.create_synthetic(policy.clone(), 3, None, None, None).map_err(|e| anyhow!("{}", e.message))?;
 
     // The HTTP path: the real server on loopback, in this process.
     let http_store = temp_store("http");

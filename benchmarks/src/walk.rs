@@ -24,10 +24,12 @@ pub struct Walk {
     pub explore: usize,
     /// Generated steps after the turn (the turn is generated and timed too).
     pub back: usize,
+    /// The sessions' frame width (`None`: the model's).
+    pub size: Option<u32>,
 }
 
 /// The stages a step's answer reports (`StepOutcome::timings_ms`), and the whole step.
-pub const STAGES: [&str; 6] = ["select", "warp", "sample", "decode", "store", "total"];
+pub const STAGES: [&str; 7] = ["select", "warp", "sample", "decode", "full_size", "store", "total"];
 
 /// One row: `sessions` walking at once.
 #[derive(Clone, Debug, Serialize)]
@@ -63,7 +65,7 @@ pub(crate) fn action(walk: &Walk, i: usize) -> Action {
 /// the turn until all have explored, so the timed phases overlap.
 fn one_walk(engine: &Engine, policy: &serde_json::Value, sampler: &Sampler, seed: u64, walk: &Walk, ready: &Barrier) -> Result<Timed, EngineError> {
     let explored = (|| -> Result<api::session::Session, EngineError> {
-        let mut s = engine.create_synthetic(policy.clone(), seed, None, None)?;
+        let mut s = engine.create_synthetic(policy.clone(), seed, None, walk.size, None)?;
         for i in 0..walk.explore {
             engine.step_observed(&mut s, &action(walk, i))?;
         }
@@ -77,23 +79,23 @@ fn one_walk(engine: &Engine, policy: &serde_json::Value, sampler: &Sampler, seed
         let t = Instant::now();
         let out = engine.step(&mut s, &action(walk, i), None, sampler, None)?;
         let total = t.elapsed().as_secs_f64() * 1e3;
-        let [a, b, c, d, e] = out.timings_ms;
-        times.push([a, b, c, d, e, total]);
+        let [a, b, c, d, e, f] = out.timings_ms;
+        times.push([a, b, c, d, e, f, total]);
     }
     Ok(Timed { times, began, ended: Instant::now() })
 }
 
 struct Timed {
-    times: Vec<[f64; 6]>,
+    times: Vec<[f64; 7]>,
     began: Instant,
     ended: Instant,
 }
 
-/// `sessions` walks at once on threads sharing `engine`; `steps` generated
-/// steps in all, split evenly (at least 25 each).
-pub fn walk_row(engine: &Engine, policy: &serde_json::Value, sampler: &Sampler, sessions: usize, steps: usize, explore: usize) -> Result<WalkRow, EngineError> {
-    let back = steps.div_ceil(sessions).max(25);
-    let walk = Walk { explore, back };
+/// `sessions` walks at once on threads sharing `engine`; `o.walk_steps`
+/// generated steps in all, split evenly (at least 25 each).
+pub fn walk_row(engine: &Engine, policy: &serde_json::Value, sampler: &Sampler, sessions: usize, o: &Options) -> Result<WalkRow, EngineError> {
+    let back = o.walk_steps.div_ceil(sessions).max(25);
+    let walk = Walk { explore: o.explore, back, size: o.size };
     let ready = Barrier::new(sessions);
     let results: Vec<Result<Timed, EngineError>> = std::thread::scope(|scope| {
         let ready = &ready;
@@ -104,7 +106,7 @@ pub fn walk_row(engine: &Engine, policy: &serde_json::Value, sampler: &Sampler, 
     // Generated steps per second while the walks generated.
     let began = timed.iter().map(|t| t.began).min().expect("at least one session");
     let ended = timed.iter().map(|t| t.ended).max().expect("at least one session");
-    let all: Vec<[f64; 6]> = timed.into_iter().flat_map(|t| t.times).collect();
+    let all: Vec<[f64; 7]> = timed.into_iter().flat_map(|t| t.times).collect();
     let wall = ended.duration_since(began).as_secs_f64();
     let generated = all.len();
     let column = |k: usize| {
@@ -128,6 +130,8 @@ pub struct Options {
     pub sampled_latents: bool,
     pub walk_steps: usize,
     pub explore: usize,
+    /// The sessions' frame width (`None`: the model's size).
+    pub size: Option<u32>,
 }
 
 pub fn run(model_dir: &Path, runtime: RuntimeOptions, o: &Options, sessions: &[usize], json_out: bool) -> Result<()> {
@@ -136,12 +140,13 @@ pub fn run(model_dir: &Path, runtime: RuntimeOptions, o: &Options, sessions: &[u
     let mut model = api::load_model(model_dir, None, runtime).map_err(anyhow::Error::msg)?;
     model.keep_sampled_latents(o.sampled_latents);
     let sampler = Sampler::new(&model.manifest().diffusion, o.steps, o.method, 0.0)?;
-    let engine = Engine::new(Store::open(&dir.join("store.redb"))?, Some(model));
+    let mut engine = Engine::new(Store::open(&dir.join("store.redb"))?, Some(model));
+    engine.max_frame_side = engine.max_frame_side.max(o.size.unwrap_or(0));
     // Co-visibility is the sessions' policy's choice, as a client would make it.
     let policy = json!({ "kind": "worldpack", "covisibility": o.covisible.then(memory::CoVisibility::default) });
     let rows = sessions
         .iter()
-        .map(|&n| walk_row(&engine, &policy, &sampler, n, o.walk_steps, o.explore).map_err(|e| anyhow!("{}: {}", e.field, e.message)))
+        .map(|&n| walk_row(&engine, &policy, &sampler, n, o).map_err(|e| anyhow!("{}: {}", e.field, e.message)))
         .collect::<Result<Vec<_>>>();
     drop(engine);
     let _ = std::fs::remove_dir_all(&dir);
@@ -149,13 +154,14 @@ pub fn run(model_dir: &Path, runtime: RuntimeOptions, o: &Options, sessions: &[u
     if json_out {
         // What the sampler runs: a distilled model's own grid, whatever was asked.
         let report = json!({ "model": model_dir, "steps": sampler.len(), "timesteps": sampler.timesteps, "method": sampler.method.name(), "covisible": o.covisible, "sampled_latents": o.sampled_latents,
-                             "threads": runtime.threads, "explore": o.explore, "stages": STAGES, "rows": rows });
+                             "threads": runtime.threads, "explore": o.explore, "size": o.size, "stages": STAGES, "rows": rows });
         println!("{}", serde_json::to_string_pretty(&report)?);
         return Ok(());
     }
     println!(
-        "model {}, {} {} steps, covisible {}, sampled latents {}, {} intra-op thread(s); {} observed steps, then the way back generated\n",
-        model_dir.display(), sampler.len(), sampler.method.name(), o.covisible, o.sampled_latents, runtime.threads, o.explore
+        "model {}, {} {} steps, covisible {}, sampled latents {}, {} intra-op thread(s), frames {}; {} observed steps, then the way back generated\n",
+        model_dir.display(), sampler.len(), sampler.method.name(), o.covisible, o.sampled_latents, runtime.threads,
+        o.size.map_or_else(|| "at the model's size".to_string(), |s| format!("{s} wide")), o.explore
     );
     print!("{:>8} {:>6} {:>8}", "sessions", "steps", "steps/s");
     for s in STAGES {

@@ -8,6 +8,7 @@
 
 pub mod backend;
 pub mod error;
+pub mod full_size;
 pub mod generate;
 pub mod graph;
 pub mod manifest;

@@ -72,7 +72,7 @@ impl Warped {
 
     /// Each hole with at least two landed 4-neighbours takes their mean and
     /// counts as landed; repeated `rounds` times.
-    fn fill_cracks(&mut self, w: usize, h: usize, rounds: usize) {
+    pub(crate) fn fill_cracks(&mut self, w: usize, h: usize, rounds: usize) {
         for _ in 0..rounds {
             let before = self.clone();
             for y in 0..h {

@@ -103,12 +103,16 @@ pub struct Args {
     /// The most MiB of imagined frames one `imagine` answer may carry (before base64).
     #[arg(long, default_value_t = 24, value_parser = clap::value_parser!(u64).range(1..=4096))]
     pub imagine_max_answer_mib: u64,
+    /// The largest side, in pixels, of a session's frames: sessions keep their frames and answer
+    /// steps at their own size up to it; larger ones are refused naming the field (docs/fullsize.md).
+    #[arg(long, default_value_t = api::engine::MAX_FRAME_SIDE as u64, value_parser = clap::value_parser!(u64).range(256..=4096))]
+    pub max_frame_side: u64,
 }
 
 pub fn run(a: Args) -> Result<()> {
     let Args { model, memory_only, model_backend, store, addr, provider, threads, steps, method, policy, max_queue, max_inflight, overlay_warp,
         covisible, batch_window_ms, batch_max, retain_idle_secs, tokens_file, max_sessions_per_tenant, rate_per_tenant, allow_unauthenticated,
-        tls_cert, tls_key, sampled_latents, imagine_max_candidates, imagine_max_horizon, imagine_max_answer_mib } = a;
+        tls_cert, tls_key, sampled_latents, imagine_max_candidates, imagine_max_horizon, imagine_max_answer_mib, max_frame_side } = a;
     if !(rate_per_tenant.is_finite() && rate_per_tenant > 0.0) {
         bail!("--rate-per-tenant: must be a positive number, got {rate_per_tenant}");
     }
@@ -153,6 +157,7 @@ pub fn run(a: Args) -> Result<()> {
             horizon: imagine_max_horizon as usize,
             answer_bytes: (imagine_max_answer_mib as usize) << 20,
         },
+        max_frame_side: max_frame_side as u32,
         ..api::Config::default()
     };
     serve(config)

@@ -53,12 +53,19 @@ pub struct SyntheticStart {
     #[serde(default)]
     #[schema(schema_with = schemas::optional_biome)]
     biome: Option<world::Biome>,
+    /// The width of the session's frames in pixels (default: the model's);
+    /// the height keeps the model's aspect. The model still sees its own
+    /// size; steps answer at this one. At most the server's `--max-frame-side`.
+    #[serde(default)]
+    #[schema(minimum = 8)]
+    size: Option<u32>,
 }
 
 #[derive(Deserialize, ToSchema)]
 #[serde(deny_unknown_fields)]
 pub struct FrameInput {
-    /// A PNG (RGB, RGBA, grey or palette; 16-bit channels are cut to 8), base64, of the intrinsics' size.
+    /// A PNG (RGB, RGBA, grey or palette; 16-bit channels are cut to 8), base64,
+    /// of the intrinsics' size: the session's size, which steps answer at (at most the server's `--max-frame-side`).
     #[schema(content_encoding = "base64")]
     image_png: String,
     #[schema(schema_with = schemas::pose_ref)]
@@ -93,10 +100,11 @@ pub async fn create(State(st): St, caller: Caller, headers: HeaderMap, body: Res
                 if req.intrinsics.is_some() {
                     return Err(ApiError::bad("intrinsics", "a synthetic session uses the model's camera"));
                 }
-                e.create_synthetic(policy_spec, s.seed, s.biome, tenant)?
+                e.create_synthetic(policy_spec, s.seed, s.biome, s.size, tenant)?
             }
             (None, Some(frames)) => {
                 let k = req.intrinsics.ok_or_else(|| ApiError::bad("intrinsics", "required with frames"))?.resolve().map_err(|e| e.within("intrinsics"))?;
+                e.check_frame_size("intrinsics.width", k.width, k.height)?;
                 let mut records = Vec::new();
                 for (i, f) in frames.iter().enumerate() {
                     let at = format!("frames[{i}]");

@@ -97,7 +97,8 @@ pub async fn step(State(st): St, caller: Caller, id: Result<Path<u64>, PathRejec
         } else {
             st2.engine.step(&mut s, &req.action, pose, &sampler, req.seed)?
         };
-        let [select, warp, sample, decode, store] = o.timings_ms;
+        let [select, warp, sample, decode, full_size, store] = o.timings_ms;
+        let k = s.intrinsics();
         Ok(StepAnswer {
             session: s.id,
             index: o.index,
@@ -105,10 +106,12 @@ pub async fn step(State(st): St, caller: Caller, id: Result<Path<u64>, PathRejec
             pose: PoseAnswer::of(&o.pose),
             source: if o.observed { crate::session::OBSERVED } else { crate::session::GENERATED }.into(),
             image_png: B64.encode(&o.png),
+            width: k.width,
+            height: k.height,
             steps: sampler.len(),
             provider,
             selection: Selection { plan: PlanAnswer::of(&s.policy, &o.plan), layout: o.layout, exact_evaluations: o.exact_evaluations, warp_frames: o.warp_frames },
-            timings_ms: StepTimings { select, warp, sample, decode, store, total: 0.0 },
+            timings_ms: StepTimings { select, warp, sample, decode, full_size, store, total: 0.0 },
             truth: o.truth.map(|t| TruthAnswer { psnr_db: t.psnr_db, ssim: t.ssim, image: format!("/v1/sessions/{}/frames/{}/truth", s.id, o.index) }),
         })
     })
@@ -140,6 +143,9 @@ pub struct StepTimings {
     pub warp: f64,
     pub sample: f64,
     pub decode: f64,
+    /// Showing the model's frame at the session's size (`model::full_size`;
+    /// 0 when the session is at the model's size).
+    pub full_size: f64,
     pub store: f64,
     /// From the request's arrival to the answer.
     pub total: f64,
@@ -163,9 +169,15 @@ pub struct StepAnswer {
     pub pose: PoseAnswer,
     /// `generated`, or `observed` for an observing step.
     pub source: String,
-    /// The generated frame, a base64 PNG.
+    /// The generated frame, a base64 PNG at the session's size.
     #[schema(content_encoding = "base64")]
     pub image_png: String,
+    /// The frame's size: the session's (its frames' size, or a synthetic
+    /// session's `size`), not the model's. Where the session is larger than
+    /// the model, stored frames are shown where they land in this view and
+    /// agree with the model's frame; the model's frame, brought up, elsewhere.
+    pub width: u32,
+    pub height: u32,
     /// Sampler steps used.
     pub steps: usize,
     pub provider: Option<String>,

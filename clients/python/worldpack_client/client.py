@@ -193,13 +193,17 @@ class Client:
     def health(self) -> dict:
         return self.request("GET", "/v1/health")
 
-    def create_session(self, *, synthetic_seed: int | None = None, biome: str | None = None,
+    def create_session(self, *, synthetic_seed: int | None = None, biome: str | None = None, size: int | None = None,
                        frames: Sequence[tuple[np.ndarray | bytes, Pose | np.ndarray]] | None = None,
                        intrinsics: Mapping[str, Any] | None = None, policy: Mapping[str, Any] | None = None) -> int:
-        """A synthetic world by seed, or real frames [(image, pose), ...] with intrinsics; returns the session id."""
+        """A synthetic world by seed (its frames `size` pixels wide; default the model's), or
+        real frames [(image, pose), ...] with intrinsics, answered at their size; returns the session id."""
         body: dict[str, Any] = {}
         if synthetic_seed is not None:
-            body["synthetic"] = {"seed": int(synthetic_seed), **({"biome": biome} if biome else {})}
+            body["synthetic"] = {"seed": int(synthetic_seed), **({"biome": biome} if biome else {}),
+                                 **({"size": int(size)} if size is not None else {})}
+        elif size is not None:
+            raise ValueError("size: a synthetic session's; a session of real frames is at its frames' size")
         if frames is not None:
             body["frames"] = [{"image_png": b64(png_bytes(img)), "pose": as_pose(p)} for img, p in frames]
         if intrinsics is not None:

@@ -45,7 +45,9 @@ def to_request(action: dict[str, Any]) -> dict[str, Any]:
 
 
 class WorldPackEnv(gym.Env):
-    """`WorldPackEnv(Client(url), max_steps=40)`; `reset(seed=s)` opens synthetic world s."""
+    """`WorldPackEnv(Client(url), max_steps=40)`; `reset(seed=s)` opens synthetic world s.
+    `size=(h, w)`: the frames' size (the world is seen and every step answered at it;
+    the model still works at its own; a square model makes square frames)."""
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 20}  # the synthetic world steps at 20 Hz
 
@@ -72,9 +74,14 @@ class WorldPackEnv(gym.Env):
         super().reset(seed=seed)
         self._close_session()
         world = int(seed) if seed is not None else int(self.np_random.integers(0, 2**31 - 1))
-        self.session = self.client.create_session(synthetic_seed=world, biome=self.biome)
+        h, w = self.observation_space["frame"].shape[:2]
+        self.session = self.client.create_session(synthetic_seed=world, biome=self.biome, size=w)
         self.index, self.steps = 1, 0  # frame 0 is the world's first frame
         self.frame = self.client.frame_image(self.session, 0)
+        if self.frame.shape[:2] != (h, w):
+            shape = self.frame.shape[:2]
+            self._close_session()
+            raise ValueError(f"size: asked for {h}x{w} (height x width) frames; the model's aspect gives {shape[0]}x{shape[1]}")
         pose = pose_matrix(self.client.frame(self.session, 0)["pose"])
         return {"frame": self.frame, "pose": pose}, {"session": self.session, "world_seed": world}
 
