@@ -557,3 +557,38 @@ fn a_fusion_head_beats_the_model_and_the_warp_it_blends() {
     let _ = std::fs::remove_dir_all(&data);
     let _ = std::fs::remove_dir_all(out.parent().unwrap());
 }
+
+/// On a suite larger than the model's frames, a model row shows full-size
+/// frames (`model::full_size`) and `--upsampled` adds the bicubic floor
+/// under it; both are scored against the full-size truth, with the full-size
+/// fused warp beside them. On a suite at the model's size the floor is refused.
+#[test]
+fn a_suite_at_96_scores_full_size_frames_beside_the_upsampled_floor() {
+    let suite = temp("suite-96");
+    ok(&["sim", "loopnav", "--per-cell", "1", "--tasks", "aba", "--ranges", "5", "--seed", "3", "--size", "96x96", "--out", suite.to_str().unwrap()]);
+    let out = temp("out-96");
+    let served = "served=fixtures/variants/worldpack_geometry_fused_1step";
+    ok(&["eval", "--suite", suite.to_str().unwrap(), "--out", out.to_str().unwrap(), "--max-frames", "6", "--threads", "1", "--policies", "baseline",
+        "--extra", served, "--only", "served", "--upsampled", "served", "--only", "served_upsampled_64", "--against", "served_upsampled_64"]);
+    let r = json(&out.join("results.json"));
+    let rows: Vec<&str> = r["rows"].as_array().unwrap().iter().map(|r| r["name"].as_str().unwrap()).collect();
+    assert_eq!(rows, ["served", "served_upsampled_64", "copy", "reproject", "reproject_fused"]);
+    let frames = |row: &str| r["per_frame"][row].as_array().unwrap().iter().flat_map(|t| t.as_array().unwrap().iter().cloned()).collect::<Vec<Value>>();
+    let (full, floor) = (frames("served"), frames("served_upsampled_64"));
+    assert_eq!(full.len(), 6);
+    // The same model frames, shown two ways: they differ where the warp was shown, never in count.
+    assert!(full.iter().zip(&floor).any(|(a, b)| a["psnr"] != b["psnr"]), "the full-size frames show the stored frames somewhere");
+    assert!(full.iter().chain(&floor).all(|f| f["psnr"].as_f64().unwrap().is_finite() && f["sharpness"].as_f64().unwrap() > 0.0));
+    // At the model's own size there is nothing to upsample.
+    let small = suite_at_model_size();
+    let refused = run(&["eval", "--suite", small.to_str().unwrap(), "--out", temp("out-64").to_str().unwrap(), "--max-frames", "2", "--threads", "1",
+        "--policies", "baseline", "--extra", served, "--only", "served", "--upsampled", "served", "--only", "served_upsampled_64", "--no-references"]);
+    assert!(!refused.status.success());
+    assert!(String::from_utf8_lossy(&refused.stderr).contains("nothing to upsample"), "{}", String::from_utf8_lossy(&refused.stderr));
+}
+
+fn suite_at_model_size() -> PathBuf {
+    let dir = temp("suite-64");
+    ok(&["sim", "loopnav", "--per-cell", "1", "--tasks", "aba", "--ranges", "5", "--seed", "3", "--out", dir.to_str().unwrap()]);
+    dir
+}

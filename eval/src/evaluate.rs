@@ -75,6 +75,13 @@ pub struct Settings {
     /// Model rows whose predictions fill the fused warp's holes in a
     /// composite row each (with the references; empty: the baseline).
     pub composites: Vec<String>,
+    /// Model rows run again with their frames brought to the suite's size
+    /// bicubically and nothing else, as a row "NAME_upsampled_W" each (W the
+    /// model's frame width): the floor under a full-size frame, on a suite
+    /// larger than the model's frames.
+    pub upsampled: Vec<String>,
+    /// How model rows show their frames on a suite larger than the model's frames.
+    pub full_size: model::full_size::FullSize,
     /// Model rows whose autoencoder's reconstruction of the true frames,
     /// decode(encode(truth)), is scored as a row "NAME_autoencoder" each.
     pub reconstruct: Vec<String>,
@@ -146,6 +153,9 @@ struct RowKey {
     /// The frames whose fused warp makes the holes mask (rows saved before the setting used 3).
     #[serde(default = "default_probe_frames")]
     probe_frames: usize,
+    /// How a model row's frames reach a suite larger than the model's frames (`model::full_size`); none at the model's size.
+    #[serde(default)]
+    full_size: Option<String>,
     feature_networks: [Option<String>; 3],
 }
 
@@ -228,7 +238,7 @@ pub fn evaluate(s: &Settings, progress: &dyn Fn(Progress)) -> Result<Evaluation,
     let lpips = s.lpips.as_deref().map(|p| Lpips::open(p, s.runtime).map_err(feature("--lpips"))).transpose()?;
     let dreamsim = s.dreamsim.as_deref().map(|p| Embedding::open(p, s.runtime).map_err(feature("--dreamsim"))).transpose()?;
     let fvd_net = s.fvd.as_deref().map(|p| VideoFeatures::open(p, s.runtime).map_err(feature("--fvd"))).transpose()?;
-    let scorer = Scorer { lpips: lpips.as_ref(), dreamsim: dreamsim.as_ref(), keep_frames: fvd_net.is_some(), probe_frames: s.probe_frames, ..Scorer::default() };
+    let scorer = Scorer { lpips: lpips.as_ref(), dreamsim: dreamsim.as_ref(), keep_frames: fvd_net.is_some(), probe_frames: s.probe_frames, full_size: s.full_size, ..Scorer::default() };
     let networks = [&s.lpips, &s.dreamsim, &s.fvd].map(|p| p.as_ref().map(|p| p.display().to_string()));
     let mut extras = Vec::with_capacity(s.extra.len());
     for (name, dir) in &s.extra {
@@ -276,6 +286,13 @@ pub fn evaluate(s: &Settings, progress: &dyn Fn(Progress)) -> Result<Evaluation,
         }
         let predictor = Predictor::PlanWarps { model, policy: policy.clone(), sampler: sampler(model)? };
         rows.push((Row { name: format!("{name}_plan_warps"), predictor }, m));
+    }
+    for name in &s.upsampled {
+        let Some((Predictor::Model { model, policy, .. }, m)) = rows.iter().find(|(r, _)| &r.name == name).map(|(r, m)| (&r.predictor, *m)) else {
+            return Err(setting("--upsampled", format!("no model row called {name:?}")));
+        };
+        let predictor = Predictor::Upsampled { model, policy: policy.clone(), sampler: sampler(model)? };
+        rows.push((Row { name: format!("{name}_upsampled_{}", model.manifest().image.width), predictor }, m));
     }
     for name in &s.reconstruct {
         let Some((model, m)) = rows.iter().find(|(r, _)| &r.name == name).and_then(|(r, m)| Some((r.predictor.model()?, *m))) else {
@@ -341,6 +358,7 @@ pub fn evaluate(s: &Settings, progress: &dyn Fn(Progress)) -> Result<Evaluation,
             scores: SCORES.into(),
             reference: (!matches!(row.predictor, Predictor::Model { .. })).then(|| crate::probe::reference_rules(s.probe_frames)),
             probe_frames: s.probe_frames,
+            full_size: m.filter(|m| larger_than(&trajs, m)).map(|_| format!("{:?}", s.full_size)),
             feature_networks: networks.clone(),
         };
         let path = rows_dir.join(format!("{}.json", row.name));
@@ -405,6 +423,12 @@ pub fn evaluate(s: &Settings, progress: &dyn Fn(Progress)) -> Result<Evaluation,
     Ok(Evaluation { summary, pooled: pooled_rows, against, strata, strip, results: path })
 }
 
+/// Whether the suite's frames differ in size from `m`'s, so its rows show frames through `model::full_size`.
+fn larger_than(trajs: &[Trajectory], m: &Model) -> bool {
+    let image = &m.manifest().image;
+    trajs.first().is_some_and(|t| (t.intrinsics.width as usize, t.intrinsics.height as usize) != (image.width, image.height))
+}
+
 /// Rolls the rule's trajectory out again for each strip row, with the noise
 /// it had in the suite (so the frames are the ones scored, up to the batch
 /// tolerance of `Model::predict`), and writes the truth and those rows as one
@@ -421,7 +445,7 @@ fn strip(
     let traj = &trajs[ti];
     let leg = rollout_frames(traj, s.max_frames);
     let columns = crate::strip::spread(leg.len(), s.strip_frames);
-    let scorer = Scorer { keep_frames: true, probe_frames: s.probe_frames, ..Scorer::default() };
+    let scorer = Scorer { keep_frames: true, probe_frames: s.probe_frames, full_size: s.full_size, ..Scorer::default() };
     let mut generated: Vec<Vec<Vec<u8>>> = Vec::new();
     for name in &s.strip {
         let (row, model) = rows.iter().find(|(r, _)| &r.name == name).expect("strip rows were checked");

@@ -47,6 +47,10 @@ pub enum Predictor<'a> {
     /// not the best-overlap frames of all memory: a policy without retrieval
     /// (nearest frame packing) stays without it; rollouts only.
     PlanWarps { model: &'a Model, policy: Policy, sampler: Sampler },
+    /// A model row whose frames, on a suite larger than the model's frames,
+    /// are brought to the suite's size bicubically and nothing else: the
+    /// floor a full-size frame (`model::full_size`) is measured against; rollouts only.
+    Upsampled { model: &'a Model, policy: Policy, sampler: Sampler },
     /// The true frame through the model's autoencoder, decode(encode(truth)):
     /// the ceiling under every frame the model makes; rollouts only.
     Reconstruct { model: &'a Model },
@@ -70,6 +74,7 @@ impl<'a> Predictor<'a> {
             Predictor::Model { model, .. }
             | Predictor::Composite { model, .. }
             | Predictor::PlanWarps { model, .. }
+            | Predictor::Upsampled { model, .. }
             | Predictor::Reconstruct { model } => Some(*model),
             Predictor::Copy | Predictor::Reproject | Predictor::ReprojectFused { .. } => None,
         }
@@ -80,7 +85,8 @@ impl<'a> Predictor<'a> {
         match self {
             Predictor::Model { policy, .. }
             | Predictor::Composite { policy, .. }
-            | Predictor::PlanWarps { policy, .. } => policy.clone(),
+            | Predictor::PlanWarps { policy, .. }
+            | Predictor::Upsampled { policy, .. } => policy.clone(),
             Predictor::Copy | Predictor::Reproject | Predictor::Reconstruct { .. } => Policy::best_overlap(),
             Predictor::ReprojectFused { frames } => Policy::best_overlap_frames(*frames),
         }
@@ -90,11 +96,11 @@ impl<'a> Predictor<'a> {
     /// plan-warp and reconstruction rows (teacher forcing has no observed depth to read).
     fn teacher_forced(&self, row: &str) -> Result<(), ProbeError> {
         let rollouts_only = match self {
-            Predictor::PlanWarps { .. } | Predictor::Reconstruct { .. } => true,
+            Predictor::PlanWarps { .. } | Predictor::Reconstruct { .. } | Predictor::Upsampled { .. } => true,
             other => other.policy().covisibility.is_some(),
         };
         if rollouts_only {
-            return Err(ProbeError::Invalid(format!("{row}: co-visible, plan-warp and reconstruction rows run in rollouts (`worldpack eval`) only")));
+            return Err(ProbeError::Invalid(format!("{row}: co-visible, plan-warp, upsampled and reconstruction rows run in rollouts (`worldpack eval`) only")));
         }
         Ok(())
     }
@@ -399,7 +405,7 @@ pub fn probe_trajectory(
                     progress(1);
                 }
             }
-            Predictor::PlanWarps { .. } | Predictor::Reconstruct { .. } => row.predictor.teacher_forced(&row.name)?,
+            Predictor::PlanWarps { .. } | Predictor::Reconstruct { .. } | Predictor::Upsampled { .. } => row.predictor.teacher_forced(&row.name)?,
         }
         scores.push(out);
     }
@@ -438,7 +444,7 @@ pub fn latency_ms(traj: &Trajectory, row: &Row, latents: &[Vec<f32>], calls: usi
                         std::hint::black_box(img);
                     })?;
                 }
-                Predictor::PlanWarps { .. } | Predictor::Reconstruct { .. } => row.predictor.teacher_forced(&row.name)?,
+                Predictor::PlanWarps { .. } | Predictor::Reconstruct { .. } | Predictor::Upsampled { .. } => row.predictor.teacher_forced(&row.name)?,
                 reference => {
                     std::hint::black_box(reference_image(traj, reference, &plan, t));
                 }

@@ -54,6 +54,10 @@ fn exploration_depth(traj: &Trajectory, upto: usize, cells: u32) -> Result<HashM
 
 struct Run<'a> {
     traj: &'a Trajectory,
+    /// `traj` at the model's frame size when the suite's is another: the
+    /// frames the model is given (warp sources), as a server resamples a
+    /// session's; its frames are then shown at the suite's size (`model::full_size`).
+    small: Option<Trajectory>,
     /// Co-visible rows: the exploration's coarse depth, by frame.
     depth: HashMap<u64, DepthGrid>,
     frusta: Vec<Frustum>,
@@ -85,11 +89,13 @@ pub struct Scorer<'a> {
     /// The best-overlap observed frames whose fused warp makes the holes mask
     /// (and a composite row's overlay).
     pub probe_frames: usize,
+    /// How a model row's frames are shown on a suite larger than the model's frames.
+    pub full_size: model::full_size::FullSize,
 }
 
 impl Default for Scorer<'_> {
     fn default() -> Self {
-        Scorer { lpips: None, dreamsim: None, keep_frames: false, capture: None, landed: Default::default(), probe_frames: FUSED_FRAMES }
+        Scorer { lpips: None, dreamsim: None, keep_frames: false, capture: None, landed: Default::default(), probe_frames: FUSED_FRAMES, full_size: Default::default() }
     }
 }
 
@@ -243,7 +249,8 @@ pub fn rollout_as(
         }
         Predictor::Model { model, policy, sampler }
         | Predictor::Composite { model, policy, sampler }
-        | Predictor::PlanWarps { model, policy, sampler } => {
+        | Predictor::PlanWarps { model, policy, sampler }
+        | Predictor::Upsampled { model, policy, sampler } => {
             model.layout_for(&policy.packing)?; // before any work: a policy the model cannot take fails at once
             let warp_policy = crate::probe::warp_policy(model);
             let plan_warps = matches!(row.predictor, Predictor::PlanWarps { .. });
@@ -254,6 +261,9 @@ pub fn rollout_as(
             // A composite overlays the fused warp of the best observed frames and re-encodes the result.
             let composite = matches!(row.predictor, Predictor::Composite { .. }).then(|| Policy::best_overlap_frames(scorer.probe_frames));
             let warps = warp_policy.is_some() || composite.is_some();
+            let image = &model.manifest().image;
+            let model_size = (image.width as u32, image.height as u32);
+            let upsampled = matches!(row.predictor, Predictor::Upsampled { .. });
             let mut runs = trajs
                 .iter()
                 .zip(observed_latents)
@@ -265,7 +275,14 @@ pub fn rollout_as(
                         Some(c) => exploration_depth(traj, range.start, c.cells)?,
                         None => HashMap::new(),
                     };
+                    let small = ((traj.intrinsics.width, traj.intrinsics.height) != model_size).then(|| traj.at_size(model_size.0, model_size.1)).transpose()?;
+                    if upsampled && small.is_none() {
+                        return Err(ProbeError::Invalid(format!("{}: the suite's frames are the model's size; there is nothing to upsample", row.name)));
+                    }
+                    // A frame shown larger than the model's warps observed frames at the suite's size.
+                    let warps = warps || small.is_some();
                     Ok(Run {
+                        small,
                         depth,
                         store: observed(&frusta, range.start)?,
                         observed: observed(&frusta, if warps { range.start } else { 0 })?,
@@ -306,8 +323,12 @@ pub fn rollout_as(
                         plans.push(plan);
                         sources.push(source);
                     }
-                    let warp_sources: Vec<Vec<WarpSource>> =
-                        chunk.iter().zip(&sources).map(|(&i, s)| s.as_ref().map_or_else(Vec::new, |p| warp_sources(runs[i].traj, p))).collect();
+                    // The model warps its sources at its own size.
+                    let warp_sources: Vec<Vec<WarpSource>> = chunk
+                        .iter()
+                        .zip(&sources)
+                        .map(|(&i, s)| s.as_ref().map_or_else(Vec::new, |p| warp_sources(runs[i].small.as_ref().unwrap_or(runs[i].traj), p)))
+                        .collect();
                     let requests: Vec<Request> = chunk
                         .iter()
                         .zip(&plans)
@@ -340,6 +361,13 @@ pub fn rollout_as(
                         c.take(&requests, &frame, &policy.packing, sampler, leg)?;
                     }
                     drop(requests);
+                    for ((&i, p), source) in chunk.iter().zip(&mut prediction.frames).zip(&sources) {
+                        let r = &runs[i];
+                        if r.small.is_some() {
+                            let how = if upsampled || composite.is_some() { Upscale::Bicubic } else { Upscale::FullSize };
+                            p.rgb = at_suite_size(r, std::mem::take(&mut p.rgb), model_size, source.as_ref(), how, &scorer.full_size)?;
+                        }
+                    }
                     if let Some(fused) = &composite {
                         for (&i, p) in chunk.iter().zip(&mut prediction.frames) {
                             let r = &runs[i];
@@ -372,6 +400,34 @@ pub fn rollout_as(
             Ok(RowOutput { scores, frames })
         }
     }
+}
+
+enum Upscale {
+    /// `model::full_size`: the stored frames where they land and agree, the model's frame elsewhere.
+    FullSize,
+    /// The model's frame alone, bicubic.
+    Bicubic,
+}
+
+/// Run `r`'s model frame (at `model_size`) shown at its suite's size: with
+/// the full-size frames of the model's warp sources (`plan`), or, for a model
+/// that warps none, of the best-overlap observed frames.
+fn at_suite_size(r: &Run, small: Vec<u8>, model_size: (u32, u32), plan: Option<&ContextPlan>, how: Upscale, rule: &model::full_size::FullSize) -> Result<Vec<u8>, ProbeError> {
+    let k = &r.traj.intrinsics;
+    let (sw, sh) = model_size;
+    if let Upscale::Bicubic = how {
+        return Ok(model::full_size::bicubic(&small, sw as usize, sh as usize, k.width as usize, k.height as usize));
+    }
+    let best;
+    let plan = match plan {
+        Some(p) => p,
+        None => {
+            best = r.observed.select(&Policy::best_overlap_frames(rule.frames), &r.frusta[r.next], None).0;
+            &best
+        }
+    };
+    let sources = warp_sources(r.traj, plan);
+    Ok(model::full_size::full_size_frame(&small, sw, sh, &sources, &r.traj.poses[r.next], k.width, k.height, rule)?.rgb)
 }
 
 /// The non-learned references draw only on observed frames: each return

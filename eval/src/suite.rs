@@ -226,6 +226,22 @@ impl Trajectory {
         self.poses.len()
     }
 
+    /// This trajectory at `width × height` (a model's frame size): every
+    /// frame and depth map resampled as a server resamples a client's warp
+    /// sources (`model::warp::resampled`), the intrinsics scaled to match.
+    pub fn at_size(&self, width: u32, height: u32) -> Result<Trajectory, model::ModelError> {
+        let (mut rgb, mut depth_mm) = (Vec::new(), Vec::new());
+        let mut k = self.intrinsics;
+        for t in 0..self.len() {
+            let src = model::WarpSource { rgb: self.frame(t), depth_mm: self.depth(t), pose: &self.poses[t], intrinsics: &self.intrinsics };
+            let (c, d, k2) = model::warp::resampled(&src, width, height)?;
+            rgb.extend(c);
+            depth_mm.extend(d);
+            k = k2;
+        }
+        Ok(Trajectory { entry: self.entry.clone(), intrinsics: k, rgb, depth_mm, poses: self.poses.clone(), phase: self.phase.clone(), actions: self.actions.clone(), ..*self })
+    }
+
     pub fn is_empty(&self) -> bool {
         self.poses.is_empty()
     }

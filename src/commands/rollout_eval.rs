@@ -86,6 +86,18 @@ pub struct Options {
     /// scored as a row "NAME_autoencoder" (repeatable): the ceiling under every frame the model makes.
     #[arg(long = "reconstruct")]
     pub reconstruct: Vec<String>,
+    /// On a suite larger than the model's frames: a model row run again with its frames brought to
+    /// the suite's size bicubically and nothing else, as a row "NAME_upsampled_W" (repeatable): the
+    /// floor under the full-size frame the plain row shows (docs/fullsize.md).
+    #[arg(long = "upsampled")]
+    pub upsampled: Vec<String>,
+    /// On a suite larger than the model's frames: the most stored frames the full-size frame shows (`model::full_size`).
+    #[arg(long, default_value_t = model::full_size::FullSize::default().frames as u64, value_parser = clap::value_parser!(u64).range(0..=1024))]
+    pub full_size_frames: u64,
+    /// On a suite larger than the model's frames: the largest luma difference (0-255) between the
+    /// warp and the model's frame, over one model pixel, at which the warp is shown.
+    #[arg(long, default_value_t = model::full_size::FullSize::default().agree_luma)]
+    pub agree_luma: f64,
     /// Run only these model rows (repeatable; default: every row), e.g. only NAME_covisible.
     #[arg(long = "only")]
     pub only: Vec<String>,
@@ -122,6 +134,8 @@ impl Options {
             strip_frames: self.strip_frames,
             composites: self.composites.clone(),
             reconstruct: self.reconstruct.clone(),
+            upsampled: self.upsampled.clone(),
+            full_size: model::full_size::FullSize { frames: self.full_size_frames as usize, agree_luma: self.agree_luma, ..Default::default() },
             probe_frames: self.probe_frames,
             covisible: self.covisible.clone(),
             plan_warps: self.plan_warps.clone(),
