@@ -22,6 +22,8 @@ def main() -> None:
     s.add_argument("--ranges", default="4,8,12", help="comma-separated ranges in metres (B is at least 0.8 range from A)")
     s.add_argument("--seed", type=int, default=0)
     s.add_argument("--workers", type=int, default=1, help="maps rendered at once (processes)")
+    s.add_argument("--size", type=int, default=64,
+                   help="frame side in pixels (square; from the 320x240 screen's centre 200 columns): 64 for the models, 224 for full-size eval")
     s.add_argument("--out", type=Path, required=True)
     a = p.parse_args()
     allowed = TRAIN_MAPS if a.split == "train" else TEST_MAPS
@@ -34,7 +36,9 @@ def main() -> None:
     ranges = [float(r) for r in a.ranges.split(",")]
     if any(r <= 0 for r in ranges):
         p.error("--ranges: every range must be above 0")
-    write_suite(a.out, a.split, maps, a.count, ranges, a.seed, workers=a.workers, task=a.task)
+    if not 8 <= a.size <= 1024:
+        p.error(f"--size: between 8 and 1024 pixels, got {a.size}")
+    write_suite(a.out, a.split, maps, a.count, ranges, a.seed, workers=a.workers, task=a.task, size=a.size)
 
 
 if __name__ == "__main__":

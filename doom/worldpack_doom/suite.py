@@ -1,7 +1,7 @@
 """Writes Doom walks as a `worldpack-suite/1` folder of
-`worldpack-trajectory/1` trajectories (docs/dataset.md), at 64x64 with
-square pixels: the 320x240 render's centre 200 columns (the render's pixels
-are 1.2 times as tall as wide), resized."""
+`worldpack-trajectory/1` trajectories (docs/dataset.md), square frames with
+square pixels (64x64 unless told): the 320x240 render's centre 200 columns
+(the render's pixels are 1.2 times as tall as wide), resized."""
 
 from __future__ import annotations
 
@@ -28,7 +28,7 @@ TRAIN_MAPS = [f"MAP{i:02d}" for i in range(1, 33) if f"MAP{i:02d}" not in TEST_M
 
 
 def intrinsics(size: int = SIZE) -> dict:
-    """The 64x64 camera: the render's (fx 160, fy 192, centred) cropped and resized."""
+    """The size x size camera: the render's (fx 160, fy 192, centred) cropped and resized."""
     sx, sy = size / (CROP[1] - CROP[0]), size / E.RENDER_HEIGHT
     cx0, cy0 = (E.RENDER_WIDTH - 1) / 2 - CROP[0], (E.RENDER_HEIGHT - 1) / 2
     return {"fx": E.RENDER_FX * sx, "fy": E.RENDER_FY * sy, "cx": (cx0 + 0.5) * sx - 0.5, "cy": (cy0 + 0.5) * sy - 0.5,
@@ -44,13 +44,13 @@ def to_frame(view: E.View, size: int = SIZE) -> tuple[np.ndarray, np.ndarray]:
     return rgb, np.clip(np.round(z), 0, 65535).astype(np.uint16)
 
 
-def render(engine: E.Engine, plan: Plan) -> dict:
+def render(engine: E.Engine, plan: Plan, size: int = SIZE) -> dict:
     rgb, depth, poses = [], [], []
     for p, a in zip(plan.points, plan.angles):
         view = engine.view_at(p[0], p[1], a)
         if abs(view.x - p[0]) > 1 or abs(view.y - p[1]) > 1:
             raise RuntimeError(f"{engine.map_name}: teleport to {p} landed at ({view.x}, {view.y})")
-        f, d = to_frame(view)
+        f, d = to_frame(view, size)
         rgb.append(f)
         depth.append(d)
         poses.append(E.map_to_world(view.c2m()))
@@ -60,7 +60,7 @@ def render(engine: E.Engine, plan: Plan) -> dict:
 
 
 def write_map(out: Path, split: str, map_name: str, count: int, ranges_m: list[float], seed: int,
-              wad: str | None = None, progress=None, task: str = "aba") -> list[dict]:
+              wad: str | None = None, progress=None, task: str = "aba", size: int = SIZE) -> list[dict]:
     """`count` walks of `task` (walk.TASKS) on one map; the map's own random
     stream (seed, map) makes them the same whatever else is written beside them."""
     rng = np.random.default_rng([seed, int(map_name[3:]) if map_name[3:].isdigit() else hash(map_name) % 2**31])
@@ -75,12 +75,12 @@ def write_map(out: Path, split: str, map_name: str, count: int, ranges_m: list[f
             plan = TASKS[task](geom, start, angle, range_m * E.UNITS_PER_METRE, rng)
             if plan is None:
                 continue
-            arrays = render(engine, plan)
+            arrays = render(engine, plan, size)
             name = f"{map_name.lower()}-{'' if task == 'aba' else task + '-'}r{int(range_m):02d}-{len(entries):03d}"
             frames = len(plan.points)
             meta = {"format": TRAJECTORY_FORMAT, "name": name, "split": split, "task": task, "range": int(range_m),
                     "frames": frames, "returning_point": plan.returning_point,
-                    "intrinsics": intrinsics(),
+                    "intrinsics": intrinsics(size),
                     "world": {"kind": "doom", "wad": Path(wad or E.wad_path()).name, "map": map_name,
                               "start_map_units": [float(start[0]), float(start[1])], "seed": seed},
                     "units": {"position": "metres (32 map units)", "depth": "millimetres along the optical axis, 0 = unknown",
@@ -101,7 +101,7 @@ def _write_map(job):
 
 
 def write_suite(out: Path, split: str, maps: list[str], count: int, ranges_m: list[float], seed: int,
-                wad: str | None = None, workers: int = 1, task: str = "aba") -> None:
+                wad: str | None = None, workers: int = 1, task: str = "aba", size: int = SIZE) -> None:
     """`count` walks of `task` spread evenly over `maps`, ranges drawn from
     `ranges_m`, maps rendered `workers` at a time."""
     import multiprocessing as mp
@@ -111,7 +111,7 @@ def write_suite(out: Path, split: str, maps: list[str], count: int, ranges_m: li
     bar = tqdm(total=count, desc=f"doom {split}", unit="walk")
     with mp.Manager() as manager:
         progress = manager.Queue()
-        jobs = [(out, split, m, n, ranges_m, seed, wad, progress, task) for m, n in per_map.items() if n > 0]
+        jobs = [(out, split, m, n, ranges_m, seed, wad, progress, task, size) for m, n in per_map.items() if n > 0]
         with mp.Pool(max(1, workers)) as pool:
             pending = pool.map_async(_write_map, jobs)
             while not pending.ready():
@@ -124,6 +124,6 @@ def write_suite(out: Path, split: str, maps: list[str], count: int, ranges_m: li
     for (m, n), r in zip(((m, n) for m, n in per_map.items() if n > 0), results):
         if len(r) < n:
             print(f"{m}: {len(r)} of {n} walks (no more starting points with room)")
-    index = {"format": SUITE_FORMAT, "kind": "doom", "split": split, "task": task, "seed": seed, "frame_size": [SIZE, SIZE],
+    index = {"format": SUITE_FORMAT, "kind": "doom", "split": split, "task": task, "seed": seed, "frame_size": [size, size],
              "total_frames": int(sum(e["frames"] for e in entries)), "maps": maps, "trajectories": entries}
     (out / "index.json").write_text(json.dumps(index, indent=1))

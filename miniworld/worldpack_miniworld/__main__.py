@@ -6,6 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from . import engine as E
 from .engine import GL_MODES, GLUnavailable
 from .suite import (DEFAULT_RANGES, HELD_OUT_ENVS, MAX_SEED, SEED_BASE, SEED_BLOCK, SPLIT_ENVS, TASK_CHOICES,
                     TRAIN_ENVS, write_suite)
@@ -33,6 +34,8 @@ def parser() -> argparse.ArgumentParser:
                         "different seeds share no world)")
     s.add_argument("--gl", choices=GL_MODES, default="egl",
                    help="egl: headless through Mesa's EGL (default); x11: the X display in DISPLAY (e.g. xvfb-run -a)")
+    s.add_argument("--size", type=int, default=E.SIZE,
+                   help=f"frame side in pixels (square): {E.SIZE} for the models, 224 for full-size eval")
     s.add_argument("--out", type=Path, required=True, help="a new or empty folder")
     return p
 
@@ -57,10 +60,12 @@ def main(argv: list[str] | None = None) -> None:
         p.error(f"--ranges: every range must be above 0 and at most {MAX_RANGE:g} m (got {a.ranges})")
     if not 0 <= a.seed <= MAX_SEED:
         p.error(f"--seed: must be 0 to {MAX_SEED} (got {a.seed})")
+    if not 8 <= a.size <= 1024:
+        p.error(f"--size: must be 8 to 1024 pixels (got {a.size})")
     if a.out.exists() and (not a.out.is_dir() or any(a.out.iterdir())):
         p.error(f"--out: {a.out} exists and is not an empty folder")
     try:
-        write_suite(a.out, a.split, envs, a.count, ranges, a.seed, task=a.task, gl=a.gl)
+        write_suite(a.out, a.split, envs, a.count, ranges, a.seed, task=a.task, gl=a.gl, size=a.size)
     except GLUnavailable as e:
         print(f"worldpack_miniworld: {e}", file=sys.stderr)
         sys.exit(1)

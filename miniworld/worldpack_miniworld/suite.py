@@ -93,7 +93,7 @@ def write_env(engine: E.Engine, out: Path, split: str, env_id: str, count: int, 
         name = f"{ENVS[env_id]}-{walk_task}-r{int(round(range_m)):02d}-{ws:07d}"
         frames = len(plan)
         meta = {"format": TRAJECTORY_FORMAT, "name": name, "split": split, "task": walk_task, "range": int(round(range_m)),
-                "frames": frames, "returning_point": plan.returning_point, "intrinsics": E.intrinsics(),
+                "frames": frames, "returning_point": plan.returning_point, "intrinsics": E.intrinsics(engine.size),
                 "world": {"kind": "miniworld", "env": env_id, "world_seed": ws, "suite_seed": seed,
                           "miniworld": _miniworld_version(), "domain_rand": True,
                           "start": [float(plan.points[0][0]), float(plan.points[0][1])]},
@@ -111,12 +111,12 @@ def write_env(engine: E.Engine, out: Path, split: str, env_id: str, count: int, 
 
 
 def write_suite(out: Path, split: str, envs: list[str], count: int, ranges_m: list[float], seed: int,
-                task: str = "aba", gl: str = "egl") -> dict:
+                task: str = "aba", gl: str = "egl", size: int = E.SIZE) -> dict:
     """`count` walks of `task` spread evenly over `envs` (one process, one
     environment at a time); returns the index it wrote."""
     out.mkdir(parents=True, exist_ok=True)
     per_env = {e: (count + len(envs) - 1 - i) // len(envs) for i, e in enumerate(envs)}
-    engine = E.Engine(gl=gl)
+    engine = E.Engine(gl=gl, size=size)
     entries = []
     try:
         with tqdm(total=count, desc=f"miniworld {split}", unit="walk") as bar:
@@ -131,7 +131,7 @@ def write_suite(out: Path, split: str, envs: list[str], count: int, ranges_m: li
     finally:
         engine.close()
     index = {"format": SUITE_FORMAT, "kind": "miniworld", "split": split, "task": task, "seed": seed,
-             "frame_size": [E.SIZE, E.SIZE], "total_frames": int(sum(e["frames"] for e in entries)), "envs": envs,
+             "frame_size": [size, size], "total_frames": int(sum(e["frames"] for e in entries)), "envs": envs,
              "ranges": ranges_m, "world_seeds": [world_seed(split, seed, 0), world_seed(split, seed, SEED_BLOCK - 1)],
              "trajectories": entries}
     (out / "index.json").write_text(json.dumps(index, indent=1))
