@@ -76,7 +76,10 @@ fn a_synthetic_session_at_224_keeps_its_size(store: &Path) {
     assert_eq!(code, 200, "{r}");
     assert_eq!(answered(&r).0, 224);
     assert!(r["truth"]["psnr_db"].as_f64().unwrap() > 10.0, "{r}");
-    let stored: Vec<Vec<u8>> = (0..6).map(|i| s.bytes(&format!("/v1/sessions/{id}/frames/{i}/image"))).collect();
+    // A step told not to score skips rendering the world's true frame.
+    let (code, r) = step(json!({ "action": { "yaw_deg": -30 }, "truth": false }));
+    assert_eq!((code, r["truth"].is_null(), r["timings_ms"]["truth"].as_f64()), (200, true, Some(0.0)), "{r}");
+    let stored: Vec<Vec<u8>> = (0..7).map(|i| s.bytes(&format!("/v1/sessions/{id}/frames/{i}/image"))).collect();
     assert!(stored.iter().all(|p| decode(p).0 == 224), "every stored frame is at the session's size");
     s.kill();
     let s = Server::start(store, &["--model", SERVED]);
@@ -84,7 +87,7 @@ fn a_synthetic_session_at_224_keeps_its_size(store: &Path) {
         assert_eq!(&s.bytes(&format!("/v1/sessions/{id}/frames/{i}/image")), png, "frame {i} after the restart");
     }
     let (code, r) = s.post(&format!("/v1/sessions/{id}/step"), &json!({ "action": { "forward": true } }));
-    assert_eq!((code, r["index"].as_u64()), (200, Some(6)), "{r}");
+    assert_eq!((code, r["index"].as_u64()), (200, Some(7)), "{r}");
     assert_eq!(answered(&r).0, 224);
     s.kill();
 }

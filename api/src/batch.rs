@@ -19,6 +19,7 @@ use memory::{ContextPlan, Intrinsics, Packing, Pose};
 use model::pack::ContextFrame;
 use model::{Model, ModelError, Predicted, Request, Sampler, WarpSource};
 
+use crate::history::{DepthFrame, Resampled};
 use crate::refusal::EngineError;
 
 /// A stored frame an item's plan refers to, owned so the item can cross threads.
@@ -38,16 +39,21 @@ pub struct OwnedWarp {
 }
 
 impl OwnedWarp {
-    /// `w` at the model's frame size: a client's frames of another size are
-    /// resampled (`model::warp::resampled`), the model's own are copied.
-    pub fn at_model_size(w: &WarpSource, m: &Model) -> Result<OwnedWarp, ModelError> {
+    /// Observed frame `d` (at `pose`, the session's camera `k`) at the model's
+    /// frame size: resampled (`model::warp::resampled`) once and kept with the
+    /// frame when the session's size is another, copied when it is the model's.
+    pub fn at_model_size(d: &DepthFrame, pose: &Pose, k: &Intrinsics, m: &Model) -> Result<OwnedWarp, ModelError> {
         let image = &m.manifest().image;
         let (width, height) = (image.width as u32, image.height as u32);
-        if (w.intrinsics.width, w.intrinsics.height) == (width, height) {
-            return Ok(OwnedWarp { rgb: w.rgb.to_vec(), depth_mm: w.depth_mm.to_vec(), pose: *w.pose, intrinsics: *w.intrinsics });
+        if (k.width, k.height) == (width, height) {
+            return Ok(OwnedWarp { rgb: d.rgb.clone(), depth_mm: d.depth_mm.clone(), pose: *pose, intrinsics: *k });
         }
-        let (rgb, depth_mm, intrinsics) = model::warp::resampled(w, width, height)?;
-        Ok(OwnedWarp { rgb, depth_mm, pose: *w.pose, intrinsics })
+        if d.at_model_size.get().is_none() {
+            let (rgb, depth_mm, intrinsics) = model::warp::resampled(&WarpSource { rgb: &d.rgb, depth_mm: &d.depth_mm, pose, intrinsics: k }, width, height)?;
+            let _ = d.at_model_size.set(Resampled { rgb, depth_mm, intrinsics }); // a concurrent step may have set it: the same pixels
+        }
+        let r = d.at_model_size.get().expect("set above");
+        Ok(OwnedWarp { rgb: r.rgb.clone(), depth_mm: r.depth_mm.clone(), pose: *pose, intrinsics: r.intrinsics })
     }
 }
 

@@ -51,7 +51,7 @@ pub struct StepOutcome {
     pub plan: ContextPlan,
     pub layout: String,
     pub exact_evaluations: usize,
-    pub timings_ms: [f64; 6], // select, warp, sample, decode, full_size, store
+    pub timings_ms: [f64; 7], // select, warp, sample, decode, full_size, truth, store
     /// The observed frames a geometry model warped into the new view, best
     /// first (empty for other models, or when no frame with depth sees it).
     pub warp_frames: Vec<u64>,
@@ -59,6 +59,24 @@ pub struct StepOutcome {
     pub truth: Option<TruthScore>,
     /// The world's own frame (an observing step), not the model's.
     pub observed: bool,
+}
+
+/// What a step may be told besides its action.
+#[derive(Clone, Copy, Debug)]
+pub struct StepOptions {
+    /// The next camera pose (default: the motion model's, from the action).
+    pub pose: Option<Pose>,
+    /// The noise seed (default: derived from the frame's time).
+    pub seed: Option<u64>,
+    /// A synthetic session's frame scored against the world's true frame
+    /// (rendering it costs as much as the model's step at 224×224).
+    pub truth: bool,
+}
+
+impl Default for StepOptions {
+    fn default() -> Self {
+        StepOptions { pose: None, seed: None, truth: true }
+    }
 }
 
 /// A generated frame against the synthetic world's true frame at its pose.
@@ -176,7 +194,7 @@ impl Engine {
             plan: ContextPlan { slots: Vec::new() },
             layout: String::new(),
             exact_evaluations: 0,
-            timings_ms: [0.0, 0.0, 0.0, 0.0, 0.0, ms(t0)],
+            timings_ms: [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, ms(t0)],
             warp_frames: Vec::new(),
             truth: None,
             observed: true,
@@ -194,9 +212,9 @@ impl Engine {
     }
 
     /// Generates the next frame of `s` and commits it before returning.
-    pub fn step(&self, s: &mut Session, action: &Action, pose: Option<Pose>, sampler: &Sampler, seed: Option<u64>) -> Result<StepOutcome, EngineError> {
+    pub fn step(&self, s: &mut Session, action: &Action, sampler: &Sampler, o: &StepOptions) -> Result<StepOutcome, EngineError> {
         let m = self.model()?;
-        let next = prepare(m, &s.timeline(), action, pose, seed, s.last_plan.as_ref())?;
+        let next = prepare(m, &s.timeline(), action, o.pose, o.seed, s.last_plan.as_ref())?;
         let Next { pose, player, time, plan, exact_evaluations, warp_frames, select_ms, item } = next;
         let outcome = match &self.batcher {
             Some(b) => b.predict(m, &s.policy.packing, sampler, item)?,
@@ -206,10 +224,12 @@ impl Engine {
         let t2 = Instant::now();
         let (rgb, width, height) = self.at_session_size(s, predicted.rgb, &pose, &warp_frames)?;
         let full_size_ms = ms(t2);
-        let truth = self.truth_at(s, &pose)?.map(|t| TruthScore {
+        let t_truth = Instant::now();
+        let truth = if o.truth { self.truth_at(s, &pose)? } else { None }.map(|t| TruthScore {
             psnr_db: eval::metrics::psnr(&rgb, &t),
             ssim: eval::metrics::ssim(&rgb, &t, width as usize, height as usize).unwrap_or(f64::NAN),
         });
+        let truth_ms = ms(t_truth);
         let t3 = Instant::now();
         let png = encode_png(width, height, &rgb);
         let decode_ms = model_decode_ms + ms(t3);
@@ -228,7 +248,7 @@ impl Engine {
             plan,
             layout,
             exact_evaluations,
-            timings_ms: [select_ms, warp_ms, sample_ms, decode_ms, full_size_ms, store_ms],
+            timings_ms: [select_ms, warp_ms, sample_ms, decode_ms, full_size_ms, truth_ms, store_ms],
             warp_frames,
             truth,
             observed: false,
@@ -322,16 +342,22 @@ pub(crate) fn prepare(m: &Model, t: &Timeline, action: &Action, pose: Option<Pos
     let selection = t.plan(&t.session.policy, &frustum, previous)?;
     let (plan, exact_evaluations) = (selection.plan, selection.stats.overlap_evaluations);
     let select_ms = ms(t0);
-    let (warp_frames, warp) = match &m.manifest().denoiser.warp {
-        Some(spec) => t.warp_sources(&frustum, spec.frames)?,
-        None => (Vec::new(), Vec::new()),
+    let warp_frames = match &m.manifest().denoiser.warp {
+        Some(spec) => t.warp_sources(&frustum, spec.frames)?.0,
+        None => Vec::new(),
     };
+    let k = t.session.intrinsics();
+    let warp = warp_frames
+        .iter()
+        .filter_map(|&id| Some((t.history.depth_frame(id)?, &t.history.frame(id)?.pose)))
+        .map(|(d, pose)| OwnedWarp::at_model_size(d, pose, k, m))
+        .collect::<Result<_, _>>()?;
     let item = Item {
         target_time: time,
         target_pose: pose,
         action: action.to_vector().to_vec(),
         seed: seed.unwrap_or(time),
-        warp: warp.iter().map(|w| OwnedWarp::at_model_size(w, m)).collect::<Result<_, _>>()?,
+        warp,
         frames: plan
             .selected()
             .filter_map(|(_, f)| {

@@ -6,6 +6,7 @@
 //! frames; [`History`] reads the runs as one.
 
 use std::collections::HashMap;
+use std::sync::OnceLock;
 
 use memory::covisibility::DepthGrid;
 use memory::{FrameMemory, Frustum, MemoryFrame, Stack};
@@ -26,6 +27,23 @@ pub struct Frame {
 pub struct DepthFrame {
     pub rgb: Vec<u8>,
     pub depth_mm: Vec<u16>,
+    /// The frame at the model's size, made the first time a step warps it
+    /// (a session larger than the model's frames would resample its warp
+    /// sources at every step otherwise).
+    pub at_model_size: OnceLock<Resampled>,
+}
+
+/// A frame and its depth resampled to another size (`model::warp::resampled`).
+pub struct Resampled {
+    pub rgb: Vec<u8>,
+    pub depth_mm: Vec<u16>,
+    pub intrinsics: memory::Intrinsics,
+}
+
+impl DepthFrame {
+    pub fn new(rgb: Vec<u8>, depth_mm: Vec<u16>) -> DepthFrame {
+        DepthFrame { rgb, depth_mm, at_model_size: OnceLock::new() }
+    }
 }
 
 /// Consecutive frames from session index `start` on, indexed.

@@ -126,7 +126,7 @@ impl Session {
         }
         let pose = self.history().frame(index).map(|f| f.pose).ok_or_else(|| EngineError::internal(format!("depth for frame {index}, which is not indexed")))?;
         let grid = pool_depth(&depth_mm, &k, CoVisibility::default().cells)?;
-        self.own.add_depth(index, self.frustum(pose)?, DepthFrame { rgb, depth_mm }, grid)
+        self.own.add_depth(index, self.frustum(pose)?, DepthFrame::new(rgb, depth_mm), grid)
     }
 
     /// `policy`'s plan for `target` over the session's frames (see [`Timeline::plan`]).

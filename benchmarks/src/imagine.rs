@@ -18,7 +18,7 @@ use std::time::Instant;
 
 use anyhow::{Result, anyhow};
 use api::EngineError;
-use api::engine::Engine;
+use api::engine::{Engine, StepOptions};
 use api::imagine::{Candidate, Last};
 use api::store::Store;
 use model::{Method, RuntimeOptions, Sampler};
@@ -54,9 +54,9 @@ pub struct Row {
     /// Per frame in the batched runs (ms): poses, plans and warp sources; the warp; sampling; decoding.
     pub batched_ms: [f64; 4],
     /// Per frame in the stepped runs (ms): the step's stages (select, warp, sample, decode with PNG
-    /// encoding, full size (0: the sessions are at the model's size), store commit) and the rest (the
-    /// world's true frame rendered and scored, the fork).
-    pub stepped_ms: [f64; 7],
+    /// encoding, full size (0: the sessions are at the model's size), the world's true frame rendered
+    /// and scored, store commit) and the rest (the fork).
+    pub stepped_ms: [f64; 8],
 }
 
 fn fail(e: EngineError) -> anyhow::Error {
@@ -100,7 +100,7 @@ fn row(engine: &Engine, s: &mut api::session::Session, sampler: &Sampler, k: usi
     let frames = (k * o.horizon) as f64;
     let mut made = 0;
     let (mut batched, mut latent_last, mut alone, mut stepped) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
-    let (mut batched_ms, mut stepped_ms) = ([0.0; 4], [0.0; 7]);
+    let (mut batched_ms, mut stepped_ms) = ([0.0; 4], [0.0; 8]);
     for round in 0..o.rounds {
         let seed = Some(round as u64);
         let t = Instant::now();
@@ -124,7 +124,7 @@ fn row(engine: &Engine, s: &mut api::session::Session, sampler: &Sampler, k: usi
             let mut fork = engine.fork(s)?;
             let mut stages = 0.0;
             for (h, a) in c.actions.iter().enumerate() {
-                let out = engine.step(&mut fork, a, None, sampler, seed.map(|x| x + h as u64))?;
+                let out = engine.step(&mut fork, a, sampler, &StepOptions { seed: seed.map(|x| x + h as u64), ..StepOptions::default() })?;
                 for (acc, v) in stepped_ms.iter_mut().zip(out.timings_ms) {
                     *acc += v / frames / o.rounds as f64;
                     stages += v;
@@ -132,7 +132,7 @@ fn row(engine: &Engine, s: &mut api::session::Session, sampler: &Sampler, k: usi
             }
             let elapsed = t.elapsed().as_secs_f64();
             took += elapsed;
-            stepped_ms[6] += (elapsed * 1e3 - stages) / frames / o.rounds as f64;
+            stepped_ms[7] += (elapsed * 1e3 - stages) / frames / o.rounds as f64;
             engine.store.delete_session(fork.id)?; // not timed: forks are dropped between rounds
         }
         stepped.push(frames / took);
@@ -149,7 +149,7 @@ pub fn run(model_dir: &Path, runtime: RuntimeOptions, o: &Options, ks: &[usize],
     let policy = json!({ "kind": "worldpack", "covisibility": o.covisible.then(memory::CoVisibility::default) });
     let rows = (|| -> Result<Vec<Row>, EngineError> {
         let mut s = engine.create_synthetic(policy, 7, None, None, None)?;
-        let walk = Walk { explore: o.explore, back: 0, size: None };
+        let walk = Walk { explore: o.explore, back: 0, size: None, truth: true };
         for i in 0..o.explore {
             engine.step_observed(&mut s, &action(&walk, i))?;
         }
@@ -179,7 +179,7 @@ pub fn run(model_dir: &Path, runtime: RuntimeOptions, o: &Options, ks: &[usize],
     for r in &rows {
         let b = r.batched_ms;
         let st = r.stepped_ms;
-        println!("K = {:<3} {:>14.2} / {:.2} / {:.2} / {:.2} {:>22.2} / {:.2} / {:.2} / {:.2} / {:.2} / {:.2}", r.candidates, b[0], b[1], b[2], b[3], st[0], st[1], st[2], st[3], st[5], st[6]);
+        println!("K = {:<3} {:>14.2} / {:.2} / {:.2} / {:.2} {:>22.2} / {:.2} / {:.2} / {:.2} / {:.2} / {:.2}", r.candidates, b[0], b[1], b[2], b[3], st[0], st[1], st[2], st[3], st[6], st[5] + st[7]);
     }
     println!("\n(made: frames the batched imagine made of K × H, the rest shared by candidates that begin alike;");
     println!(" batching: batched over alone, sharing included; skipping: alone over stepped, the step's commit, PNG and truth scoring; rest: the true frame and the fork;");

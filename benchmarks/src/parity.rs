@@ -7,7 +7,7 @@
 use std::path::Path;
 
 use anyhow::{Result, anyhow};
-use api::engine::Engine;
+use api::engine::{Engine, StepOptions};
 use api::store::Store;
 use model::{Method, Provider, RuntimeOptions, Sampler, Tensor};
 use serde::Serialize;
@@ -71,7 +71,7 @@ pub fn run(model_dir: &Path, other: RuntimeOptions, steps: usize, explore: usize
         let fail = |e: api::EngineError| anyhow!("{}: {}", e.field, e.message);
         let mut a = cpu.create_synthetic(policy.clone(), 7, None, None, None).map_err(fail)?;
         let mut b = oth.create_synthetic(policy, 7, None, None, None).map_err(fail)?;
-        let walk = Walk { explore, back, size: None };
+        let walk = Walk { explore, back, size: None, truth: true };
         let mut frames = Vec::new();
         let mut decoder_max_abs = None;
         for i in 0..explore + TURN + back {
@@ -79,8 +79,8 @@ pub fn run(model_dir: &Path, other: RuntimeOptions, steps: usize, explore: usize
             let generated = i >= explore;
             let (mut frame_max_abs, mut frame_psnr_db, mut ta, mut tb) = (0u8, None, None, None);
             if generated {
-                let oa = cpu.step(&mut a, &act, None, &sampler, None).map_err(fail)?;
-                let ob = oth.step(&mut b, &act, None, &sampler, None).map_err(fail)?;
+                let oa = cpu.step(&mut a, &act, &sampler, &StepOptions::default()).map_err(fail)?;
+                let ob = oth.step(&mut b, &act, &sampler, &StepOptions::default()).map_err(fail)?;
                 let (pa, pb) = (rgb(&oa.png)?, rgb(&ob.png)?);
                 frame_max_abs = pa.iter().zip(&pb).map(|(x, y)| x.abs_diff(*y)).max().unwrap_or(0);
                 frame_psnr_db = Some(eval::metrics::psnr(&pa, &pb));

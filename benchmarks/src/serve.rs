@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{Context, Result, anyhow};
-use api::engine::Engine;
+use api::engine::{Engine, StepOptions};
 use api::store::Store;
 use model::{RuntimeOptions, Sampler};
 use serde::Serialize;
@@ -104,7 +104,7 @@ pub fn run(
     for i in 0..calls + 2 {
         let a = action(i);
         let t = Instant::now();
-        engine.step(&mut session, &a, None, &sampler, None).map_err(|e| anyhow!("{}", e.message))?;
+        engine.step(&mut session, &a, &sampler, &StepOptions::default()).map_err(|e| anyhow!("{}", e.message))?;
         let l = t.elapsed().as_secs_f64() * 1e3;
         let t = Instant::now();
         post(&format!("{base}/v1/sessions/{id}/step"), &json!({ "action": a }))?;

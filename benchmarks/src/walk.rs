@@ -10,7 +10,7 @@ use std::time::Instant;
 
 use anyhow::{Result, anyhow};
 use api::EngineError;
-use api::engine::Engine;
+use api::engine::{Engine, StepOptions};
 use api::store::Store;
 use model::{Method, RuntimeOptions, Sampler};
 use motion::Action;
@@ -26,10 +26,12 @@ pub struct Walk {
     pub back: usize,
     /// The sessions' frame width (`None`: the model's).
     pub size: Option<u32>,
+    /// Each step scored against the world's true frame, as the server's steps are unless told not to.
+    pub truth: bool,
 }
 
 /// The stages a step's answer reports (`StepOutcome::timings_ms`), and the whole step.
-pub const STAGES: [&str; 7] = ["select", "warp", "sample", "decode", "full_size", "store", "total"];
+pub const STAGES: [&str; 8] = ["select", "warp", "sample", "decode", "full_size", "truth", "store", "total"];
 
 /// One row: `sessions` walking at once.
 #[derive(Clone, Debug, Serialize)]
@@ -77,16 +79,16 @@ fn one_walk(engine: &Engine, policy: &serde_json::Value, sampler: &Sampler, seed
     let mut times = Vec::with_capacity(TURN + walk.back);
     for i in walk.explore..walk.explore + TURN + walk.back {
         let t = Instant::now();
-        let out = engine.step(&mut s, &action(walk, i), None, sampler, None)?;
+        let out = engine.step(&mut s, &action(walk, i), sampler, &StepOptions { truth: walk.truth, ..StepOptions::default() })?;
         let total = t.elapsed().as_secs_f64() * 1e3;
-        let [a, b, c, d, e, f] = out.timings_ms;
-        times.push([a, b, c, d, e, f, total]);
+        let [a, b, c, d, e, f, g] = out.timings_ms;
+        times.push([a, b, c, d, e, f, g, total]);
     }
     Ok(Timed { times, began, ended: Instant::now() })
 }
 
 struct Timed {
-    times: Vec<[f64; 7]>,
+    times: Vec<[f64; 8]>,
     began: Instant,
     ended: Instant,
 }
@@ -95,7 +97,7 @@ struct Timed {
 /// generated steps in all, split evenly (at least 25 each).
 pub fn walk_row(engine: &Engine, policy: &serde_json::Value, sampler: &Sampler, sessions: usize, o: &Options) -> Result<WalkRow, EngineError> {
     let back = o.walk_steps.div_ceil(sessions).max(25);
-    let walk = Walk { explore: o.explore, back, size: o.size };
+    let walk = Walk { explore: o.explore, back, size: o.size, truth: o.truth };
     let ready = Barrier::new(sessions);
     let results: Vec<Result<Timed, EngineError>> = std::thread::scope(|scope| {
         let ready = &ready;
@@ -106,7 +108,7 @@ pub fn walk_row(engine: &Engine, policy: &serde_json::Value, sampler: &Sampler, 
     // Generated steps per second while the walks generated.
     let began = timed.iter().map(|t| t.began).min().expect("at least one session");
     let ended = timed.iter().map(|t| t.ended).max().expect("at least one session");
-    let all: Vec<[f64; 7]> = timed.into_iter().flat_map(|t| t.times).collect();
+    let all: Vec<[f64; 8]> = timed.into_iter().flat_map(|t| t.times).collect();
     let wall = ended.duration_since(began).as_secs_f64();
     let generated = all.len();
     let column = |k: usize| {
@@ -132,6 +134,8 @@ pub struct Options {
     pub explore: usize,
     /// The sessions' frame width (`None`: the model's size).
     pub size: Option<u32>,
+    /// Score each step against the world's true frame (a session of real frames has none).
+    pub truth: bool,
 }
 
 pub fn run(model_dir: &Path, runtime: RuntimeOptions, o: &Options, sessions: &[usize], json_out: bool) -> Result<()> {
@@ -154,14 +158,14 @@ pub fn run(model_dir: &Path, runtime: RuntimeOptions, o: &Options, sessions: &[u
     if json_out {
         // What the sampler runs: a distilled model's own grid, whatever was asked.
         let report = json!({ "model": model_dir, "steps": sampler.len(), "timesteps": sampler.timesteps, "method": sampler.method.name(), "covisible": o.covisible, "sampled_latents": o.sampled_latents,
-                             "threads": runtime.threads, "explore": o.explore, "size": o.size, "stages": STAGES, "rows": rows });
+                             "threads": runtime.threads, "explore": o.explore, "size": o.size, "truth": o.truth, "stages": STAGES, "rows": rows });
         println!("{}", serde_json::to_string_pretty(&report)?);
         return Ok(());
     }
     println!(
-        "model {}, {} {} steps, covisible {}, sampled latents {}, {} intra-op thread(s), frames {}; {} observed steps, then the way back generated\n",
+        "model {}, {} {} steps, covisible {}, sampled latents {}, {} intra-op thread(s), frames {}, truth scored {}; {} observed steps, then the way back generated\n",
         model_dir.display(), sampler.len(), sampler.method.name(), o.covisible, o.sampled_latents, runtime.threads,
-        o.size.map_or_else(|| "at the model's size".to_string(), |s| format!("{s} wide")), o.explore
+        o.size.map_or_else(|| "at the model's size".to_string(), |s| format!("{s} wide")), o.truth, o.explore
     );
     print!("{:>8} {:>6} {:>8}", "sessions", "steps", "steps/s");
     for s in STAGES {

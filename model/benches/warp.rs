@@ -4,6 +4,8 @@
 //! fusion head blends with (the same warp, cracks filled, holes from the best
 //! frame), each alone and both from one projection as a step makes them. Real
 //! frames: the export's fused warp case of fixtures/variants/worldpack_geometry.
+//! And the full-size stage (`model::full_size`) at 224×224: 4 and 8 of the voxel
+//! world's frames, rendered at that size, shown over a 64×64 frame.
 //! `cargo bench -p model`.
 
 use std::path::{Path, PathBuf};
@@ -47,5 +49,30 @@ fn warp(c: &mut Criterion) {
     });
 }
 
-criterion_group!(benches, warp);
+/// Frames of the voxel world at `side` pixels: a walk forward with a slow turn, and the pose after it.
+fn voxel_walk(side: u32, frames: usize) -> (Vec<(Vec<u8>, Vec<u16>, Pose)>, Pose, memory::Intrinsics) {
+    let world = world::World::generate(3);
+    let k = world::suite::default_intrinsics(side, side).unwrap();
+    let start = world::agent::PlayerState::at_cell(world::agent::spawn_point(&world, None).unwrap(), 0.0);
+    let at = |i: usize| world::agent::PlayerState { yaw_deg: start.yaw_deg + 3.0 * i as f64, ..start }.camera();
+    let shot = |i: usize| {
+        let f = world::render::render(&world, &at(i), &k, &world::render::RenderSettings::default());
+        (f.rgb, f.depth.iter().map(|&d| world::suite::depth_to_mm(d)).collect(), at(i))
+    };
+    ((0..frames).map(shot).collect(), at(frames), k)
+}
+
+fn full_size(c: &mut Criterion) {
+    use model::full_size::{FullSize, bicubic, full_size_frame};
+    let (shots, target, k) = voxel_walk(224, 8);
+    let sources: Vec<WarpSource> = shots.iter().rev().map(|(rgb, depth, pose)| WarpSource { rgb, depth_mm: depth, pose, intrinsics: &k }).collect();
+    let small = vec![128u8; 64 * 64 * 3];
+    c.bench_function("bicubic_64_to_224", |b| b.iter(|| bicubic(&small, 64, 64, 224, 224)));
+    for frames in [4, 8] {
+        let rule = FullSize { frames, ..FullSize::default() };
+        c.bench_function(&format!("full_size_{frames}_sources_224x224"), |b| b.iter(|| full_size_frame(&small, 64, 64, &sources, &target, 224, 224, &rule).unwrap()));
+    }
+}
+
+criterion_group!(benches, warp, full_size);
 criterion_main!(benches);

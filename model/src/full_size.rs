@@ -29,7 +29,7 @@ pub struct FullSize {
 
 impl Default for FullSize {
     fn default() -> Self {
-        FullSize { agree_luma: 24.0, min_cover: 0.75, frames: 4 }
+        FullSize { agree_luma: 48.0, min_cover: 0.75, frames: 8 }
     }
 }
 

@@ -109,6 +109,10 @@ pub enum Bench {
         /// each step answered at this size (the full-size stage, `full_size`).
         #[arg(long, value_parser = clap::value_parser!(u32).range(8..=4096))]
         size: Option<u32>,
+        /// Do not score steps against the world's true frame (`"truth": false` in a step request;
+        /// a session of real frames has none): at 224×224 rendering it costs as much as the model's step.
+        #[arg(long)]
+        no_truth: bool,
         #[arg(long, default_value = "cpu", value_parser = parse_provider)]
         provider: model::Provider,
         /// Intra-op threads per model call (pin the process to one core with `taskset -c 0` for a one-core figure).
@@ -258,13 +262,13 @@ impl Bench {
                 benchmarks::serve::run(model, runtime, *steps as usize, *calls as usize, sessions, *per_session as usize, *batch_window_ms,
                     model_backend.as_deref(), *json)
             }
-            Bench::Walk { model, steps, method, covisible, sampled_latents, sessions, walk_steps, explore, size, provider, threads, json } => {
+            Bench::Walk { model, steps, method, covisible, sampled_latents, sessions, walk_steps, explore, size, no_truth, provider, threads, json } => {
                 if let Some(bad) = sessions.iter().find(|&&n| n == 0 || n > 256) {
                     bail!("--sessions must lie in 1..=256, got {bad}");
                 }
                 let runtime = model::RuntimeOptions { provider: *provider, threads: *threads };
                 let o = benchmarks::walk::Options { steps: *steps as usize, method: *method, covisible: *covisible, sampled_latents: *sampled_latents,
-                    walk_steps: *walk_steps as usize, explore: *explore as usize, size: *size };
+                    walk_steps: *walk_steps as usize, explore: *explore as usize, size: *size, truth: !*no_truth };
                 benchmarks::walk::run(model, runtime, &o, sessions, *json)
             }
             Bench::Parity { model, provider, steps, explore, back, threads, json } => {

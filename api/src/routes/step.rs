@@ -17,6 +17,7 @@ use utoipa::ToSchema;
 
 use crate::schemas;
 use crate::auth::Caller;
+use crate::engine::StepOptions;
 use crate::error::{ApiError, ErrorBody};
 use super::request::{parse, session_id, check_id, pose_from, sampler, validate_action};
 use super::access::{slot, lock, permit, blocking};
@@ -52,6 +53,15 @@ pub struct StepRequest {
     /// generating one (exploration, as a robot's camera would see it).
     #[serde(default)]
     observe: bool,
+    /// Synthetic sessions: score the frame against the world's true frame
+    /// (`truth` in the answer). `false` skips rendering it: at 224×224 that
+    /// costs about as much as the model's step.
+    #[serde(default = "yes")]
+    truth: bool,
+}
+
+fn yes() -> bool {
+    true
 }
 
 #[utoipa::path(post, path = "/v1/sessions/{id}/step", summary = "Select memories, generate the next frame, store it (durable before the answer)",
@@ -95,9 +105,9 @@ pub async fn step(State(st): St, caller: Caller, id: Result<Path<u64>, PathRejec
             }
             st2.engine.step_observed(&mut s, &req.action)?
         } else {
-            st2.engine.step(&mut s, &req.action, pose, &sampler, req.seed)?
+            st2.engine.step(&mut s, &req.action, &sampler, &StepOptions { pose, seed: req.seed, truth: req.truth })?
         };
-        let [select, warp, sample, decode, full_size, store] = o.timings_ms;
+        let [select, warp, sample, decode, full_size, truth, store] = o.timings_ms;
         let k = s.intrinsics();
         Ok(StepAnswer {
             session: s.id,
@@ -111,7 +121,7 @@ pub async fn step(State(st): St, caller: Caller, id: Result<Path<u64>, PathRejec
             steps: sampler.len(),
             provider,
             selection: Selection { plan: PlanAnswer::of(&s.policy, &o.plan), layout: o.layout, exact_evaluations: o.exact_evaluations, warp_frames: o.warp_frames },
-            timings_ms: StepTimings { select, warp, sample, decode, full_size, store, total: 0.0 },
+            timings_ms: StepTimings { select, warp, sample, decode, full_size, truth, store, total: 0.0 },
             truth: o.truth.map(|t| TruthAnswer { psnr_db: t.psnr_db, ssim: t.ssim, image: format!("/v1/sessions/{}/frames/{}/truth", s.id, o.index) }),
         })
     })
@@ -146,6 +156,8 @@ pub struct StepTimings {
     /// Showing the model's frame at the session's size (`model::full_size`;
     /// 0 when the session is at the model's size).
     pub full_size: f64,
+    /// Rendering a synthetic session's true frame and scoring against it (0 otherwise).
+    pub truth: f64,
     pub store: f64,
     /// From the request's arrival to the answer.
     pub total: f64,
