@@ -229,7 +229,7 @@ impl Engine {
             psnr_db: eval::metrics::psnr(&rgb, &t),
             ssim: eval::metrics::ssim(&rgb, &t, width as usize, height as usize).unwrap_or(f64::NAN),
         });
-        let truth_ms = ms(t_truth);
+        let truth_ms = if truth.is_some() { ms(t_truth) } else { 0.0 };
         let t3 = Instant::now();
         let png = encode_png(width, height, &rgb);
         let decode_ms = model_decode_ms + ms(t3);
