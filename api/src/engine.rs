@@ -30,7 +30,7 @@ pub struct Engine {
     /// The largest side of a session's frames (`serve --max-frame-side`):
     /// frames are kept and answered at their own size up to it.
     pub max_frame_side: u32,
-    /// How a frame larger than the model's is made (`model::full_size`).
+    /// How a frame larger than the model's is made (`model::full_size`): the model's serving block's rule.
     pub full_size: FullSize,
     worlds: Mutex<HashMap<u64, Arc<World>>>,
 }
@@ -88,7 +88,8 @@ pub struct TruthScore {
 
 impl Engine {
     pub fn new(store: Store, model: Option<Model>) -> Engine {
-        Engine { store, model, batcher: None, max_frame_side: MAX_FRAME_SIDE, full_size: FullSize::default(), worlds: Mutex::new(HashMap::new()) }
+        let full_size = model.as_ref().map_or_else(FullSize::default, Model::full_size_rule);
+        Engine { store, model, batcher: None, max_frame_side: MAX_FRAME_SIDE, full_size, worlds: Mutex::new(HashMap::new()) }
     }
 
     /// The synthetic world of `seed`, generated once and shared.

@@ -80,8 +80,9 @@ pub struct Settings {
     /// model's frame width): the floor under a full-size frame, on a suite
     /// larger than the model's frames.
     pub upsampled: Vec<String>,
-    /// How model rows show their frames on a suite larger than the model's frames.
-    pub full_size: model::full_size::FullSize,
+    /// On a suite larger than the model's frames, each model row shows its frames by its
+    /// manifest's full-size rule; these replace its agreement (luma levels) and frame count.
+    pub full_size: (Option<f64>, Option<usize>),
     /// Model rows whose autoencoder's reconstruction of the true frames,
     /// decode(encode(truth)), is scored as a row "NAME_autoencoder" each.
     pub reconstruct: Vec<String>,
@@ -358,7 +359,7 @@ pub fn evaluate(s: &Settings, progress: &dyn Fn(Progress)) -> Result<Evaluation,
             scores: SCORES.into(),
             reference: (!matches!(row.predictor, Predictor::Model { .. })).then(|| crate::probe::reference_rules(s.probe_frames)),
             probe_frames: s.probe_frames,
-            full_size: m.filter(|m| larger_than(&trajs, m)).map(|_| format!("{:?}", s.full_size)),
+            full_size: m.filter(|m| larger_than(&trajs, m)).map(|m| format!("{:?}", m.full_size_rule().with(s.full_size.0, s.full_size.1))),
             feature_networks: networks.clone(),
         };
         let path = rows_dir.join(format!("{}.json", row.name));

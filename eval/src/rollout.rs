@@ -89,13 +89,14 @@ pub struct Scorer<'a> {
     /// The best-overlap observed frames whose fused warp makes the holes mask
     /// (and a composite row's overlay).
     pub probe_frames: usize,
-    /// How a model row's frames are shown on a suite larger than the model's frames.
-    pub full_size: model::full_size::FullSize,
+    /// On a suite larger than the model's frames: replaces the model's own
+    /// full-size rule's agreement (luma levels) and frame count where given.
+    pub full_size: (Option<f64>, Option<usize>),
 }
 
 impl Default for Scorer<'_> {
     fn default() -> Self {
-        Scorer { lpips: None, dreamsim: None, keep_frames: false, capture: None, landed: Default::default(), probe_frames: FUSED_FRAMES, full_size: Default::default() }
+        Scorer { lpips: None, dreamsim: None, keep_frames: false, capture: None, landed: Default::default(), probe_frames: FUSED_FRAMES, full_size: (None, None) }
     }
 }
 
@@ -365,7 +366,8 @@ pub fn rollout_as(
                         let r = &runs[i];
                         if r.small.is_some() {
                             let how = if upsampled || composite.is_some() { Upscale::Bicubic } else { Upscale::FullSize };
-                            p.rgb = at_suite_size(r, std::mem::take(&mut p.rgb), model_size, source.as_ref(), how, &scorer.full_size)?;
+                            let rule = model.full_size_rule().with(scorer.full_size.0, scorer.full_size.1);
+                            p.rgb = at_suite_size(r, std::mem::take(&mut p.rgb), model_size, source.as_ref(), how, &rule)?;
                         }
                     }
                     if let Some(fused) = &composite {

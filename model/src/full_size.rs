@@ -33,6 +33,21 @@ impl Default for FullSize {
     }
 }
 
+impl FullSize {
+    /// The rule `serving` names (its `full_size` block), else the default.
+    pub fn of(serving: Option<&crate::manifest::ServingSpec>) -> FullSize {
+        match serving.and_then(|s| s.full_size) {
+            Some(f) => FullSize { agree_luma: f.agree_luma, frames: f.frames, ..FullSize::default() },
+            None => FullSize::default(),
+        }
+    }
+
+    /// This rule with the fields `agree_luma` and `frames` replaced where given.
+    pub fn with(self, agree_luma: Option<f64>, frames: Option<usize>) -> FullSize {
+        FullSize { agree_luma: agree_luma.unwrap_or(self.agree_luma), frames: frames.unwrap_or(self.frames), ..self }
+    }
+}
+
 /// A frame at the session's size and how it was made.
 #[derive(Clone, Debug, PartialEq)]
 pub struct FullFrame {
@@ -265,6 +280,17 @@ mod tests {
         let model_frame = box_down(&rgb, side, side / small);
         let away = full_size_frame(&model_frame, small as u32, small as u32, &[src], &turned, side as u32, side as u32, &FullSize::default()).unwrap();
         assert_eq!(away.warp_share, 0.0);
+    }
+
+    #[test]
+    fn a_models_serving_block_names_its_rule_and_flags_replace_fields_of_it() {
+        let serving: crate::manifest::ServingSpec = serde_json::from_str(r#"{"full_size": {"agree_luma": 255, "frames": 32}}"#).unwrap();
+        let rule = FullSize::of(Some(&serving));
+        assert_eq!((rule.agree_luma, rule.frames, rule.min_cover), (255.0, 32, FullSize::default().min_cover));
+        assert_eq!(FullSize::of(None), FullSize::default());
+        assert_eq!(rule.with(None, Some(4)).frames, 4);
+        assert_eq!(rule.with(Some(12.0), None), FullSize { agree_luma: 12.0, ..rule });
+        assert!(serde_json::from_str::<crate::manifest::ServingSpec>(r#"{"full_size": {"agree": 1, "frames": 2}}"#).is_err(), "a misspelt field is refused");
     }
 
     #[test]

@@ -54,6 +54,18 @@ pub struct ServingSpec {
     pub method: Option<String>,
     pub steps: Option<u64>,
     pub covisible: Option<bool>,
+    /// How frames larger than the model's are shown (`model::full_size`), chosen on the
+    /// world's development suite at that size; absent: `FullSize::default()`.
+    #[serde(default)]
+    pub full_size: Option<FullSizeSpec>,
+}
+
+/// The serving block's `full_size`: `full_size::FullSize`'s two choices.
+#[derive(Clone, Copy, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FullSizeSpec {
+    pub agree_luma: f64,
+    pub frames: usize,
 }
 
 #[derive(Clone, Debug, Deserialize)]

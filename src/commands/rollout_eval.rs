@@ -91,13 +91,15 @@ pub struct Options {
     /// floor under the full-size frame the plain row shows (docs/fullsize.md).
     #[arg(long = "upsampled")]
     pub upsampled: Vec<String>,
-    /// On a suite larger than the model's frames: the most stored frames the full-size frame shows (`model::full_size`).
-    #[arg(long, default_value_t = model::full_size::FullSize::default().frames as u64, value_parser = clap::value_parser!(u64).range(0..=1024))]
-    pub full_size_frames: u64,
+    /// On a suite larger than the model's frames: the most stored frames the full-size frame shows
+    /// (`model::full_size`; default: the model's manifest `serving.full_size`, else 8).
+    #[arg(long, value_parser = clap::value_parser!(u64).range(0..=1024))]
+    pub full_size_frames: Option<u64>,
     /// On a suite larger than the model's frames: the largest luma difference (0-255) between the
-    /// warp and the model's frame, over one model pixel, at which the warp is shown.
-    #[arg(long, default_value_t = model::full_size::FullSize::default().agree_luma)]
-    pub agree_luma: f64,
+    /// warp and the model's frame, over one model pixel, at which the warp is shown (default: the
+    /// model's manifest `serving.full_size`, else 48).
+    #[arg(long)]
+    pub agree_luma: Option<f64>,
     /// Run only these model rows (repeatable; default: every row), e.g. only NAME_covisible.
     #[arg(long = "only")]
     pub only: Vec<String>,
@@ -135,7 +137,7 @@ impl Options {
             composites: self.composites.clone(),
             reconstruct: self.reconstruct.clone(),
             upsampled: self.upsampled.clone(),
-            full_size: model::full_size::FullSize { frames: self.full_size_frames as usize, agree_luma: self.agree_luma, ..Default::default() },
+            full_size: (self.agree_luma, self.full_size_frames.map(|f| f as usize)),
             probe_frames: self.probe_frames,
             covisible: self.covisible.clone(),
             plan_warps: self.plan_warps.clone(),
