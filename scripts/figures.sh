@@ -11,6 +11,9 @@
 #   ./scripts/figures.sh miniworld    # MiniWorld's held-out suites, from ./scripts/miniworld.sh eval's runs
 #   ./scripts/figures.sh trainer voxel  # the model `worldpack train --from voxel` makes (MODEL: runs/voxel-h1)
 #                                     # beside the served one on the voxel test suite (doom: runs/doom-h1, Doom's)
+#   ./scripts/figures.sh fullsize     # frames at 224x224: the three worlds' held-out suites rendered at that size,
+#                                     # the served models' full-size frames against the 64x64 frame brought up and
+#                                     # the full-size fused warp; and the step at 224x224 on one core
 #   ./scripts/figures.sh speed        # the main job's step on one core (taskset) and memory selection
 #   ./scripts/figures.sh cards        # the served voxel and Doom models' MODEL.md from their test suites' runs
 #   ./scripts/figures.sh render       # README.md's table and the pages' figure spans from docs/figures/*.json
@@ -93,6 +96,36 @@ speed() {
   figures save-json select-loop runs/figures-select.json --command "target/release/worldpack bench select --workload loop"
 }
 
+# fullsize_eval NAME SUITE MODELS SERVED: the served model's full-size frames on a 224x224 suite,
+# paired against the 64x64 frame brought up (NAME) and against the full-size fused warp (NAME-fused).
+fullsize_eval() {
+  local name=$1 s=$2 models=$3 served=$4 out="runs/figures/$1"
+  local rows=(--suite "$s" --models "$models" --policies baseline --extra served="$served" --covisible served
+              --only served_covisible --upsampled served_covisible --only served_covisible_upsampled_64
+              --probe-frames 32 --threads "$threads" --out "$out")
+  "$bin" eval "${rows[@]}" --against reproject_fused
+  figures save "$name-fused" "$out/results.json" --command "./scripts/figures.sh fullsize"
+  "$bin" eval "${rows[@]}" --against served_covisible_upsampled_64 \
+    --strip served_covisible,served_covisible_upsampled_64,reproject_fused --strip-frames 6
+  figures save "$name" "$out/results.json" --command "./scripts/figures.sh fullsize"
+}
+
+fullsize() {
+  suite data/loopnav-test224 --per-cell 6 --seed 6 --size 224x224
+  fullsize_eval fullsize-voxel data/loopnav-test224 fixtures/variants fixtures/variants/worldpack_geometry_fused_1step
+  [ -f data/doom-test224/index.json ] || (cd doom && PYTHONPATH=.:../train ../.venv/bin/python -m worldpack_doom suite \
+    --split test --count 48 --seed 2 --size 224 --out ../data/doom-test224)
+  fullsize_eval fullsize-doom data/doom-test224 fixtures/doom fixtures/doom/geometry_fused
+  [ -f data/mw-test-aba224/index.json ] || (cd miniworld && PYTHONPATH=.:../train ../.venv/bin/python -m worldpack_miniworld \
+    suite --split test --task aba --count 48 --seed 2 --size 224 --out ../data/mw-test-aba224)
+  fullsize_eval fullsize-miniworld data/mw-test-aba224 fixtures/doom fixtures/miniworld/geometry_fused
+  for truth in "" --no-truth; do
+    taskset -c 0 "$bin" bench walk --sessions 1 --size 224 $truth --json > "runs/figures-walk224$truth.json"
+    figures save-json "walk224$truth" "runs/figures-walk224$truth.json" \
+      --command "taskset -c 0 target/release/worldpack bench walk --sessions 1 --size 224 $truth"
+  done
+}
+
 cards() {
   PYTHONPATH=train "$py" -m worldpack_train.card --ship fixtures/variants/worldpack_geometry_fused_1step \
     --eval docs/figures/voxel-test.json --world voxel
@@ -101,7 +134,7 @@ cards() {
 
 mkdir -p runs/figures
 case "${1:-}" in
-  voxel|doom|miniworld|trainer|speed|cards) "$@" ;;
+  voxel|doom|miniworld|trainer|fullsize|speed|cards) "$@" ;;
   render) figures render ;;
-  *) sed -n '2,17p' "$0"; exit 2 ;;
+  *) sed -n '2,20p' "$0"; exit 2 ;;
 esac

@@ -278,3 +278,16 @@ def test_the_engine_turns_to_the_angle_asked_for_from_the_first_view():
             assert abs((engine.view_at(x, y, angle).angle - angle + 180.0) % 360.0 - 180.0) < 0.5
     finally:
         engine.close()
+
+
+def test_a_suite_at_224_keeps_the_camera_and_passes_the_checker(tmp_path):
+    out = tmp_path / "big"
+    subprocess.run([sys.executable, "-m", "worldpack_doom", "suite", "--split", "test", "--maps", "MAP20", "--count", "1",
+                    "--ranges", "4", "--seed", "1", "--size", "224", "--out", str(out)], cwd=ROOT / "doom", check=True, capture_output=True)
+    checked = check(out)
+    assert checked.returncode == 0 and "224x224" in checked.stdout, checked.stdout + checked.stderr
+    entry = json.loads((out / "index.json").read_text())["trajectories"][0]
+    assert np.load(out / entry["dir"] / "rgb.npy", mmap_mode="r").shape[1:] == (224, 224, 3)
+    k, k64 = json.loads((out / entry["dir"] / "meta.json").read_text())["intrinsics"], S.intrinsics(64)
+    # The same field of view at another size: the focal lengths scale with the side.
+    assert abs(k["fx"] / 224 - k64["fx"] / 64) < 1e-9 and abs(k["fy"] / 224 - k64["fy"] / 64) < 1e-9

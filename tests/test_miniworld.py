@@ -353,3 +353,17 @@ def test_xvfb_renders_what_egl_renders(tmp_path):
     for array in ("rgb", "depth", "poses", "actions"):
         a, b = np.load(tmp_path / "egl" / name / f"{array}.npy"), np.load(tmp_path / "x11" / name / f"{array}.npy")
         assert np.abs(a.astype(float) - b.astype(float)).max() <= (1 if array == "rgb" else 0), array
+
+
+def test_a_suite_at_224_passes_the_checker_with_its_camera_scaled(tmp_path):
+    out = tmp_path / "big"
+    run = tool("suite", "--split", "test", "--envs", "MiniWorld-FourRooms-v0", "--task", "aba", "--count", "1",
+               "--ranges", "3", "--seed", "2", "--size", "224", "--out", str(out))
+    assert run.returncode == 0, run.stderr
+    checked = check(out)
+    assert checked.returncode == 0 and "224x224" in checked.stdout, checked.stdout + checked.stderr
+    entry = json.loads((out / "index.json").read_text())["trajectories"][0]
+    k = json.loads((out / entry["dir"] / "meta.json").read_text())["intrinsics"]
+    assert (k["width"], k["height"]) == (224, 224) and abs(k["fx"] / 224 - K["fx"] / 64) < 1e-9
+    refused = tool("suite", "--split", "test", "--count", "1", "--size", "4", "--out", str(tmp_path / "tiny"))
+    assert refused.returncode != 0 and "--size" in refused.stderr

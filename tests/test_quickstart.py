@@ -56,6 +56,9 @@ def test_the_quickstart_runs_as_written_and_beats_holding_the_last_frame(tmp_pat
     model, held = map(float, re.search(r"PSNR ([\d.]+) dB.*held still: ([\d.]+) dB", printed).groups())
     assert model > held + 3, printed  # the model's frames, not a copy of the last one
     assert (tmp_path / "made" / "strip.png").exists() and (tmp_path / "made" / "0186.png").exists()
+    from PIL import Image
+    assert Image.open(tmp_path / "made" / "0186.png").size == (128, 128), "frames come back at the folder's size"
+
 
 
 def test_a_folder_with_an_unknown_convention_is_refused_naming_the_field(tmp_path):

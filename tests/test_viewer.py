@@ -176,3 +176,21 @@ def test_the_page_sends_its_token_to_a_server_with_tokens(browser, tmp_path):
     finally:
         proc.terminate()
         proc.wait(timeout=30)
+
+
+def test_a_session_at_224_shows_its_frames_at_224(browser, tmp_path):
+    proc, url = start(tmp_path, "--steps", "2")
+    try:
+        page, foreign = offline_page(browser, url)
+        page.goto(url + "/viewer")
+        page.fill("#seed", "3")
+        page.select_option("#size", "224")
+        page.click("#create")
+        page.wait_for_function("document.querySelector('#session-label').textContent.includes('1 frame, 224×224,')")
+        page.keyboard.press("w")
+        page.wait_for_function("document.querySelector('#frame').dataset.index === '1'")
+        page.wait_for_function("document.querySelector('#frame').complete && document.querySelector('#frame').naturalWidth === 224")
+        assert foreign == [], f"the page fetched from elsewhere: {foreign}"
+    finally:
+        proc.terminate()
+        proc.wait(timeout=30)

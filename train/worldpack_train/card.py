@@ -37,6 +37,7 @@ def summarise(results: dict) -> dict:
     def rows(pooled):
         return {r["row"]: {"psnr": interval(r["psnr"]), "ssim": interval(r["ssim"]),
                            "served_minus_row_db": interval(r.get("psnr_diff"), flip=True),
+                           "served_minus_row_holes_db": interval(r.get("holes_psnr_diff"), flip=True),
                            "sharpness": interval(r.get("sharpness")), "holes_psnr": interval(r.get("holes_psnr")),
                            "holes_sharpness": interval(r.get("holes_sharpness"))} for r in pooled}
     return {"suite": results["suite"], "trajectories": len(results["trajectories"]),
@@ -92,11 +93,19 @@ def render(manifest: dict, settings: dict, lineage: dict) -> str:
     out += eval_tables(ev)
     out += ["", "![a held-out way back: the truth, then each row](heldout-strip.png)", "",
             "## Limits", "",
-            "- 64x64 frames; the intrinsics and world scale of the training data (positions in roughly metres).",
+            sizes(manifest["image"]),
+            "- The intrinsics and world scale of the training data (positions in roughly metres).",
             "- It generates what the memory and the warp do not show from what it learned of this world: "
             "new ground is its weakest stratum.",
             "- Figures are from one held-out split of the training data's own world; a new user's scenes may differ.", ""]
     return "\n".join(out)
+
+
+def sizes(image: dict) -> str:
+    """The card's line on frame sizes: the model's own, and a session's (model::full_size)."""
+    return (f"- Frames: it sees and makes {image['width']}x{image['height']}; a session keeps its frames at their own size "
+            "(up to `serve --max-frame-side`, 512) and is answered at it, its stored frames shown where they land and this "
+            "model's frame brought up elsewhere ([fullsize.md](../../../docs/fullsize.md)).")
 
 
 def served_as(serving: dict) -> list[str]:
@@ -135,7 +144,8 @@ def render_shipped(manifest: dict, world: str) -> str:
            f"({ev['return_frames']:,} generated frames), made by `{ev['command']}`. {READING}", ""]
     out += eval_tables(ev)
     out += ["", "## Limits", "",
-            "- 64x64 frames; the intrinsics and scale of its world (positions in roughly metres).",
+            sizes(manifest["image"]),
+            "- The intrinsics and scale of its world (positions in roughly metres).",
             "- Where the memory has no pixels (new ground, holes) its detail is what it learned of its world.", ""]
     return "\n".join(out)
 

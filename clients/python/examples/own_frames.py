@@ -6,8 +6,8 @@ poses, which are scored against your held-back images.
     ./scripts/serve.sh &                                        # the served voxel model
     python clients/python/examples/own_frames.py my-frames/ --observe 40 --out made/
 
-The folder (docs/quickstart.md): images (PNG or JPEG, any one size; the server resizes
-them to the model's 64x64 and scales the intrinsics) and `cameras.json`:
+The folder (docs/quickstart.md): images (PNG or JPEG, any one size up to the server's
+--max-frame-side; the model sees them at its 64x64, the session answers at theirs) and `cameras.json`:
 
     {"intrinsics": {"fx": 89.6, "fy": 89.6, "cx": 63.5, "cy": 63.5, "width": 128, "height": 128,
                     "near": 0.1, "far": 64.0},
@@ -83,7 +83,7 @@ def main() -> None:
         step = client.step(session, {}, pose=f["pose"])
         Image.fromarray(step.image).save(a.out / f"{i:04d}.png")
         made.append(step.image)
-        h, w = step.image.shape[:2]  # your image at the model's size, to score against
+        h, w = step.image.shape[:2]  # the session answers at your images' size
         truth.append(np.asarray(Image.fromarray(f["image"]).resize((w, h), Image.BILINEAR)))
     client.delete_session(session)
 
