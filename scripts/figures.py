@@ -111,6 +111,21 @@ def trainer_row(world: str) -> list[str] | None:
             f"truth's edge energy against {share(served['sharpness'])}", code(ev["command"])]
 
 
+def fullsize_row() -> list[str] | None:
+    """The served models' frames at 224x224 (their sessions' own size) on the three worlds' held-out suites."""
+    worlds = [("voxel", "fullsize-voxel"), ("Doom", "fullsize-doom"), ("MiniWorld", "fullsize-miniworld")]
+    if not all((FIGURES / f"{n}.json").exists() and (FIGURES / f"{n}-fused.json").exists() for _, n in worlds):
+        return None
+    parts = []
+    for world, name in worlds:
+        served, fused = load(name)["rows"]["served_covisible"], load(f"{name}-fused")["rows"]["served_covisible"]
+        parts.append(f"{world} {db(served['psnr'])}: {gap(interval(served['served_minus_row_db'], flip=True))} over the 64×64 "
+                     f"frame brought up, {gap(interval(fused['served_minus_row_db'], flip=True))} over the fused warp, "
+                     f"at {share(served['sharpness'])}")
+    return ["Frames at 224×224, a session's own size: the served models on their held-out suites rendered at it",
+            "; ".join(parts) + " of the truth's edge energy (dB)", code(load("fullsize-voxel")["command"])]
+
+
 def speed_rows() -> list[list[str]]:
     walk, select = load("walk"), load("select-loop")
     w = walk["report"]["rows"][0]
@@ -129,7 +144,7 @@ def table() -> str:
             trainer_row("voxel"),
             served_row("The served Doom model, {n} walks on maps never trained on", "doom-test", baseline=True),
             trainer_row("doom"),
-            miniworld_row(), *speed_rows()]
+            miniworld_row(), fullsize_row(), *speed_rows()]
     lines = ["| what | figure | command |", "| --- | --- | --- |"]
     lines += [f"| {' | '.join(r)} |" for r in rows if r is not None]
     return "\n".join(lines)

@@ -111,7 +111,7 @@ fullsize_eval() {
 }
 
 fullsize() {
-  suite data/loopnav-test224 --per-cell 6 --seed 6 --size 224x224
+  [ -f data/loopnav-test224/index.json ] || "$bin" sim loopnav --per-cell 6 --seed 6 --size 224x224 --out data/loopnav-test224
   fullsize_eval fullsize-voxel data/loopnav-test224 fixtures/variants fixtures/variants/worldpack_geometry_fused_1step
   [ -f data/doom-test224/index.json ] || (cd doom && PYTHONPATH=.:../train ../.venv/bin/python -m worldpack_doom suite \
     --split test --count 48 --seed 2 --size 224 --out ../data/doom-test224)
@@ -119,6 +119,9 @@ fullsize() {
   [ -f data/mw-test-aba224/index.json ] || (cd miniworld && PYTHONPATH=.:../train ../.venv/bin/python -m worldpack_miniworld \
     suite --split test --task aba --count 48 --seed 2 --size 224 --out ../data/mw-test-aba224)
   fullsize_eval fullsize-miniworld data/mw-test-aba224 fixtures/doom fixtures/miniworld/geometry_fused
+  # The strip for docs/fullsize.md, in 256 colours (Doom's frames are close to a palette already).
+  "$py" -c "import sys; from PIL import Image; Image.open(sys.argv[1]).convert('RGB').quantize(256).save(sys.argv[2], optimize=True)" \
+    runs/figures/fullsize-doom/strip.png docs/fullsize/doom-strip.png
   for truth in "" --no-truth; do
     taskset -c 0 "$bin" bench walk --sessions 1 --size 224 $truth --json > "runs/figures-walk224$truth.json"
     figures save-json "walk224$truth" "runs/figures-walk224$truth.json" \

@@ -88,7 +88,7 @@ pub struct TruthScore {
 
 impl Engine {
     pub fn new(store: Store, model: Option<Model>) -> Engine {
-        let full_size = model.as_ref().map_or_else(FullSize::default, Model::full_size_rule);
+        let full_size = model.as_ref().map_or_else(FullSize::default, |m| FullSize::of(m.manifest().serving.as_ref()));
         Engine { store, model, batcher: None, max_frame_side: MAX_FRAME_SIDE, full_size, worlds: Mutex::new(HashMap::new()) }
     }
 

@@ -359,7 +359,7 @@ pub fn evaluate(s: &Settings, progress: &dyn Fn(Progress)) -> Result<Evaluation,
             scores: SCORES.into(),
             reference: (!matches!(row.predictor, Predictor::Model { .. })).then(|| crate::probe::reference_rules(s.probe_frames)),
             probe_frames: s.probe_frames,
-            full_size: m.filter(|m| larger_than(&trajs, m)).map(|m| format!("{:?}", m.full_size_rule().with(s.full_size.0, s.full_size.1))),
+            full_size: m.filter(|m| larger_than(&trajs, m)).map(|m| format!("{:?}", model::full_size::FullSize::of(m.manifest().serving.as_ref()).with(s.full_size.0, s.full_size.1))),
             feature_networks: networks.clone(),
         };
         let path = rows_dir.join(format!("{}.json", row.name));

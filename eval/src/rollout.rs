@@ -9,6 +9,7 @@ use std::collections::HashMap;
 
 use memory::covisibility::DepthGrid;
 use memory::{ContextPlan, FrameMemory, Frustum, MemoryFrame, Policy};
+use model::full_size::FullSize;
 use model::warp::{self, fused_reference, stands_at};
 use model::pack::ContextFrame;
 use model::{Model, Request, Sampler, WarpSource};
@@ -366,7 +367,7 @@ pub fn rollout_as(
                         let r = &runs[i];
                         if r.small.is_some() {
                             let how = if upsampled || composite.is_some() { Upscale::Bicubic } else { Upscale::FullSize };
-                            let rule = model.full_size_rule().with(scorer.full_size.0, scorer.full_size.1);
+                            let rule = FullSize::of(model.manifest().serving.as_ref()).with(scorer.full_size.0, scorer.full_size.1);
                             p.rgb = at_suite_size(r, std::mem::take(&mut p.rgb), model_size, source.as_ref(), how, &rule)?;
                         }
                     }
@@ -414,7 +415,7 @@ enum Upscale {
 /// Run `r`'s model frame (at `model_size`) shown at its suite's size: with
 /// the full-size frames of the model's warp sources (`plan`), or, for a model
 /// that warps none, of the best-overlap observed frames.
-fn at_suite_size(r: &Run, small: Vec<u8>, model_size: (u32, u32), plan: Option<&ContextPlan>, how: Upscale, rule: &model::full_size::FullSize) -> Result<Vec<u8>, ProbeError> {
+fn at_suite_size(r: &Run, small: Vec<u8>, model_size: (u32, u32), plan: Option<&ContextPlan>, how: Upscale, rule: &FullSize) -> Result<Vec<u8>, ProbeError> {
     let k = &r.traj.intrinsics;
     let (sw, sh) = model_size;
     if let Upscale::Bicubic = how {

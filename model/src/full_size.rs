@@ -34,7 +34,7 @@ impl Default for FullSize {
 }
 
 impl FullSize {
-    /// The rule `serving` names (its `full_size` block), else the default.
+    /// The rule a model's manifest names (its `serving.full_size` block), else the default.
     pub fn of(serving: Option<&crate::manifest::ServingSpec>) -> FullSize {
         match serving.and_then(|s| s.full_size) {
             Some(f) => FullSize { agree_luma: f.agree_luma, frames: f.frames, ..FullSize::default() },

@@ -54,12 +54,6 @@ impl Model {
         Model { dir: dir.to_path_buf(), manifest, backend, sampled_latents: false, overlay_warp: false }
     }
 
-    /// How this model's frames are shown at a larger session's size: its
-    /// manifest's `serving.full_size`, else the default rule.
-    pub fn full_size_rule(&self) -> full_size::FullSize {
-        full_size::FullSize::of(self.manifest.serving.as_ref())
-    }
-
     /// With a fusion head: the memory keeps each generated frame's sampled
     /// latent instead of re-encoding the blended frame that is shown, one
     /// encoder call less a step (`serve --sampled-latents`).
