@@ -49,8 +49,11 @@ fn warp(c: &mut Criterion) {
     });
 }
 
-/// Frames of the voxel world at `side` pixels: a walk forward with a slow turn, and the pose after it.
-fn voxel_walk(side: u32, frames: usize) -> (Vec<(Vec<u8>, Vec<u16>, Pose)>, Pose, memory::Intrinsics) {
+/// A rendered frame: colour, depth in millimetres, and where it was taken.
+type Shot = (Vec<u8>, Vec<u16>, Pose);
+
+/// Frames of the voxel world at `side` pixels: a slow turn on the spot, and the pose after it.
+fn voxel_walk(side: u32, frames: usize) -> (Vec<Shot>, Pose, memory::Intrinsics) {
     let world = world::World::generate(3);
     let k = world::suite::default_intrinsics(side, side).unwrap();
     let start = world::agent::PlayerState::at_cell(world::agent::spawn_point(&world, None).unwrap(), 0.0);

@@ -218,7 +218,7 @@ mod tests {
 
     /// A wall 2 m ahead with a fine checker on it (detail a 16×16 frame cannot hold).
     fn checker(side: usize) -> (Vec<u8>, Vec<u16>) {
-        let rgb = (0..side * side).flat_map(|p| if (p % side + p / side) % 2 == 0 { [200, 60, 30] } else { [40, 90, 220] }).collect();
+        let rgb = (0..side * side).flat_map(|p| if (p % side + p / side).is_multiple_of(2) { [200, 60, 30] } else { [40, 90, 220] }).collect();
         (rgb, vec![2000; side * side])
     }
 
