@@ -37,7 +37,7 @@ impl FullSize {
     /// The rule a model's manifest names (its `serving.full_size` block), else the default.
     pub fn of(serving: Option<&crate::manifest::ServingSpec>) -> FullSize {
         match serving.and_then(|s| s.full_size) {
-            Some(f) => FullSize { agree_luma: f.agree_luma, frames: f.frames, ..FullSize::default() },
+            Some(f) => FullSize { agree_luma: f.agree_luma, frames: f.frames, min_cover: f.min_cover.unwrap_or(FullSize::default().min_cover) },
             None => FullSize::default(),
         }
     }
@@ -287,6 +287,8 @@ mod tests {
         let serving: crate::manifest::ServingSpec = serde_json::from_str(r#"{"full_size": {"agree_luma": 255, "frames": 32}}"#).unwrap();
         let rule = FullSize::of(Some(&serving));
         assert_eq!((rule.agree_luma, rule.frames, rule.min_cover), (255.0, 32, FullSize::default().min_cover));
+        let any_cover: crate::manifest::ServingSpec = serde_json::from_str(r#"{"full_size": {"agree_luma": 9, "frames": 2, "min_cover": 0}}"#).unwrap();
+        assert_eq!(FullSize::of(Some(&any_cover)).min_cover, 0.0);
         assert_eq!(FullSize::of(None), FullSize::default());
         assert_eq!(rule.with(None, Some(4)).frames, 4);
         assert_eq!(rule.with(Some(12.0), None), FullSize { agree_luma: 12.0, ..rule });

@@ -66,6 +66,9 @@ pub struct ServingSpec {
 pub struct FullSizeSpec {
     pub agree_luma: f64,
     pub frames: usize,
+    /// The least share of a model pixel the warp must cover to be shown there (default 0.75).
+    #[serde(default)]
+    pub min_cover: Option<f64>,
 }
 
 #[derive(Clone, Debug, Deserialize)]
