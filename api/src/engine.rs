@@ -39,9 +39,6 @@ pub struct Engine {
 /// 256×256 photo fit; a 512×512 frame's full-size stage is about 5× a 224×224 one's.
 pub const MAX_FRAME_SIDE: u32 = 512;
 
-/// Warp sources a full-size frame shows for a model that warps none itself.
-pub const FULL_SIZE_FRAMES: usize = 3;
-
 /// What one step produced.
 pub struct StepOutcome {
     pub index: u64,
@@ -269,7 +266,7 @@ impl Engine {
         }
         let timeline = s.timeline();
         let sources = if warp_frames.is_empty() {
-            timeline.warp_sources(&s.frustum(*pose)?, FULL_SIZE_FRAMES)?.1
+            timeline.warp_sources(&s.frustum(*pose)?, self.full_size.frames)?.1
         } else {
             timeline.warp_sources_of(warp_frames)
         };
