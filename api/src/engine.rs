@@ -265,11 +265,14 @@ impl Engine {
             return Ok((small, sw, sh));
         }
         let timeline = s.timeline();
-        let sources = if warp_frames.is_empty() {
-            timeline.warp_sources(&s.frustum(*pose)?, self.full_size.frames)?.1
+        let best;
+        let ids = if warp_frames.is_empty() {
+            best = timeline.warp_frames(&s.frustum(*pose)?, self.full_size.frames)?;
+            &best
         } else {
-            timeline.warp_sources_of(warp_frames)
+            warp_frames
         };
+        let sources = timeline.warp_sources_of(ids);
         let frame = full_size_frame(&small, sw, sh, &sources, pose, k.width, k.height, &self.full_size)?;
         Ok((frame.rgb, k.width, k.height))
     }
@@ -341,15 +344,11 @@ pub(crate) fn prepare(m: &Model, t: &Timeline, action: &Action, pose: Option<Pos
     let (plan, exact_evaluations) = (selection.plan, selection.stats.overlap_evaluations);
     let select_ms = ms(t0);
     let warp_frames = match &m.manifest().denoiser.warp {
-        Some(spec) => t.warp_sources(&frustum, spec.frames)?.0,
+        Some(spec) => t.warp_frames(&frustum, spec.frames)?,
         None => Vec::new(),
     };
     let k = t.session.intrinsics();
-    let warp = warp_frames
-        .iter()
-        .filter_map(|&id| Some((t.history.depth_frame(id)?, &t.history.frame(id)?.pose)))
-        .map(|(d, pose)| OwnedWarp::at_model_size(d, pose, k, m))
-        .collect::<Result<_, _>>()?;
+    let warp = t.depth_frames_of(&warp_frames).map(|(d, pose)| OwnedWarp::at_model_size(d, pose, k, m)).collect::<Result<_, _>>()?;
     let item = Item {
         target_time: time,
         target_pose: pose,

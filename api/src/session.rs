@@ -258,27 +258,25 @@ impl<'a> Timeline<'a> {
         Ok(memory.plan(policy, target, previous, |id| grids.as_ref().and_then(|g| g.get(id)))?)
     }
 
-    /// The `count` observed frames with depth that overlap `target` most (or,
-    /// when the session's policy asks for co-visibility, that saw most of its
-    /// expected surface unoccluded), best first, ready to warp, with their
-    /// indices (none when no frame with depth sees it).
-    pub fn warp_sources(&self, target: &Frustum, count: usize) -> Result<(Vec<u64>, Vec<WarpSource<'a>>), EngineError> {
+    /// The indices of the `count` observed frames with depth that overlap
+    /// `target` most (or, when the session's policy asks for co-visibility,
+    /// that saw most of its expected surface unoccluded), best first (none
+    /// when no frame with depth sees it).
+    pub fn warp_frames(&self, target: &Frustum, count: usize) -> Result<Vec<u64>, EngineError> {
         let best = Policy { covisibility: self.session.policy.covisibility, ..Policy::best_overlap_frames(count) };
         let plan = self.plan_in(&self.history.depth_memory(), &best, target, None)?.plan;
-        let ids: Vec<u64> = plan.selected().map(|(_, f)| f.id).filter(|&id| self.history.depth_frame(id).is_some()).collect();
-        let sources = self.warp_sources_of(&ids);
-        Ok((ids, sources))
+        Ok(plan.selected().map(|(_, f)| f.id).filter(|&id| self.history.depth_frame(id).is_some()).collect())
     }
 
-    /// Frames `ids` (observed, with depth) ready to warp, in that order; ids without depth are left out.
+    /// Frames `ids` (observed, with depth) with their poses, in that order; ids without depth are left out.
+    pub fn depth_frames_of<'i>(&'i self, ids: &'i [u64]) -> impl Iterator<Item = (&'a DepthFrame, &'a Pose)> + 'i {
+        ids.iter().filter_map(|&id| Some((self.history.depth_frame(id)?, &self.history.frame(id)?.pose)))
+    }
+
+    /// Frames `ids` (observed, with depth) ready to warp at the session's size, in that order.
     pub fn warp_sources_of(&self, ids: &[u64]) -> Vec<WarpSource<'a>> {
         let intrinsics = self.session.intrinsics();
-        ids.iter()
-            .filter_map(|&id| {
-                let d = self.history.depth_frame(id)?;
-                Some(WarpSource { rgb: &d.rgb, depth_mm: &d.depth_mm, pose: &self.history.frame(id)?.pose, intrinsics })
-            })
-            .collect()
+        self.depth_frames_of(ids).map(|(d, pose)| WarpSource { rgb: &d.rgb, depth_mm: &d.depth_mm, pose, intrinsics }).collect()
     }
 
     /// The pose after `action`: the world's physics in a synthetic session,

@@ -266,6 +266,7 @@ pub fn rollout_as(
             let image = &model.manifest().image;
             let model_size = (image.width as u32, image.height as u32);
             let upsampled = matches!(row.predictor, Predictor::Upsampled { .. });
+            let rule = FullSize::of(model.manifest().serving.as_ref()).with(scorer.full_size.0, scorer.full_size.1);
             let mut runs = trajs
                 .iter()
                 .zip(observed_latents)
@@ -367,7 +368,6 @@ pub fn rollout_as(
                         let r = &runs[i];
                         if r.small.is_some() {
                             let how = if upsampled || composite.is_some() { Upscale::Bicubic } else { Upscale::FullSize };
-                            let rule = FullSize::of(model.manifest().serving.as_ref()).with(scorer.full_size.0, scorer.full_size.1);
                             p.rgb = at_suite_size(r, std::mem::take(&mut p.rgb), model_size, source.as_ref(), how, &rule)?;
                         }
                     }
